@@ -1,0 +1,129 @@
+"""Building a reference map from a traverse."""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Iterable
+
+import numpy as np
+from tqdm import tqdm
+
+from .config import Config
+from .describe import DescribedFrame, LostDescriber
+from .errors import LostxError, MapError
+from .frame import Frame
+from .lost import centred_window, window_means
+from .refmap import MapFrame, MapWriter
+from .thumbnail import ThumbnailDescriber
+
+
+@dataclass
+class BuildSummary:
+    path: Path
+    n_frames: int
+    seconds: float
+    bytes: int
+
+    @property
+    def bytes_per_frame(self) -> float:
+        return self.bytes / max(self.n_frames, 1)
+
+
+def _windowed(
+    frames: Iterable[Frame], describe: Callable[[np.ndarray], DescribedFrame], window: int
+) -> Iterable[tuple[Frame, DescribedFrame, np.ndarray]]:
+    """Yield each frame with its class means averaged over a centred window (clipped at the ends).
+
+    Frames stream through: frame j is finished as soon as frame j + window // 2
+    has been described, so at most ``window`` frames are held at a time.
+    """
+    half = window // 2
+    held: deque[tuple[int, Frame, DescribedFrame]] = deque()
+    done = 0
+
+    def finish(j: int, length: int) -> tuple[Frame, DescribedFrame, np.ndarray]:
+        span = centred_window(j, length, window)
+        chosen = [d for i, _, d in held if span.start <= i < span.stop]
+        mu, _ = window_means(np.stack([d.means for d in chosen]), np.stack([d.present for d in chosen]))
+        _, frame, described = next(item for item in held if item[0] == j)
+        while held and held[0][0] < j + 1 - half:
+            held.popleft()
+        return frame, described, mu
+
+    count = 0
+    for i, frame in enumerate(frames):
+        held.append((i, frame, describe(frame.image)))
+        count = i + 1
+        if i - half >= done:
+            yield finish(done, count)
+            done += 1
+    while done < count:
+        yield finish(done, count)
+        done += 1
+
+
+def build_map(
+    frames: Iterable[Frame],
+    out: str | Path,
+    config: Config | None = None,
+    describer: LostDescriber | ThumbnailDescriber | None = None,
+    metadata: dict | None = None,
+    overwrite: bool = False,
+    total: int | None = None,
+    progress: bool = True,
+) -> BuildSummary:
+    """Describe every frame of a traverse and commit the map atomically.
+
+    ``describer`` is a :class:`LostDescriber` (a LoST map: the default) or a
+    :class:`ThumbnailDescriber` (a map of SeqSLAM thumbnails). Any error while
+    reading or describing a frame aborts the build and leaves no map behind.
+    """
+    import time
+
+    config = config or Config()
+    if describer is None:
+        from .backbone import load_backbone
+
+        describer = LostDescriber(load_backbone(config.backbone), config.lost)
+    start = time.perf_counter()
+    kind = "lost" if isinstance(describer, LostDescriber) else "thumbnail"
+    info = describer.backbone.info if isinstance(describer, LostDescriber) else None
+    meta = dict(metadata or {})
+    meta["settings"] = config.to_dict()
+    if isinstance(describer, LostDescriber):
+        meta["classes"] = describer.groups.spec()
+        meta["label_names"] = list(describer.groups.label_names)
+    else:
+        meta["thumbnail"] = describer.settings()
+    bar = tqdm(total=total, desc=f"building {Path(out).name}", unit="frame", disable=not progress, leave=False)
+    with MapWriter(out, kind, meta, backbone=info, overwrite=overwrite) as writer:
+        try:
+            if isinstance(describer, LostDescriber):
+                for frame, described, mu in _windowed(_ticking(frames, bar), describer, config.lost.reference_window):
+                    writer.add(
+                        MapFrame(frame.name, describer.descriptor(described, mu), described.evidence,
+                                 frame.position, frame.timestamp)
+                    )
+            else:
+                for frame in _ticking(frames, bar):
+                    writer.add(MapFrame(frame.name, describer(frame.image), None, frame.position, frame.timestamp))
+        finally:
+            bar.close()
+        if not writer.frames:
+            raise MapError("the traverse has no frames; nothing to build")
+        path = writer.commit()
+    from .refmap import ReferenceMap
+
+    size = ReferenceMap.open(path).nbytes
+    return BuildSummary(path=path, n_frames=len(writer.frames), seconds=time.perf_counter() - start, bytes=size)
+
+
+def _ticking(frames: Iterable[Frame], bar: tqdm) -> Iterable[Frame]:
+    for frame in frames:
+        yield frame
+        bar.update(1)
+
+
+__all__ = ["BuildSummary", "build_map", "LostxError"]

@@ -1,0 +1,191 @@
+"""All tunable settings, in one typed place, with defaults that work.
+
+A :class:`Config` is made of one frozen dataclass per stage. Build one in
+Python (``Config()``, ``dataclasses.replace``), or load overrides from a TOML
+file whose tables are named after the sections::
+
+    [verify]
+    scoring = "released"
+    top_k = 20
+
+Unknown keys are an error, so a typo never silently falls back to a default.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import tomllib
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+from .errors import InputError
+
+Scoring = Literal["eq4-lost", "eq4", "released"]
+DensityFilter = Literal["query", "both", "off"]
+Normalisation = Literal["running", "reference"]
+
+
+@dataclass(frozen=True)
+class BackboneConfig:
+    """Which semantic segmentation network describes the frames."""
+
+    name: str = "mosaic-ade20k"
+    """Registered backbone name (``lostx backbones`` lists them)."""
+    model_path: Path | None = None
+    """Model file; ``None`` looks in the models folder (``$LOSTX_MODELS`` or ``../shared/models``)."""
+    device: str = "cpu"
+    """``cpu``, ``cuda`` or ``cuda:N`` for PyTorch backbones; TFLite backbones run on the CPU."""
+    threads: int = 2
+    """CPU threads for inference."""
+
+
+@dataclass(frozen=True)
+class LostConfig:
+    """The LoST descriptor (paper Eq. 1-3) and its normalisation."""
+
+    classes: dict[str, tuple[str, ...]] | None = None
+    """Semantic classes of the descriptor: name -> the model's class names it groups.
+    ``None`` uses the backbone's own default (road, building, vegetation)."""
+    reference_window: int = 15
+    """Class means mu_s of a map frame are averaged over this many frames centred on it."""
+    query_window: int = 1
+    """Class means of a live query are averaged over it and the previous frames (never future ones)."""
+    normalisation: Normalisation = "running"
+    """Per-dimension standardisation of query descriptors: ``reference`` uses the map's
+    statistics; ``running`` starts from them and updates with the queries seen so far."""
+    prior_frames: float = 1.0
+    """Weight, in frames, of the map's statistics in the running normalisation."""
+
+
+@dataclass(frozen=True)
+class VerifyConfig:
+    """Candidate search and spatial layout verification (paper Sec. III-A/C)."""
+
+    top_k: int = 10
+    """Candidates passed from the descriptor search to verification."""
+    scoring: Scoring = "eq4-lost"
+    """``eq4``: r_c of Eq. 4. ``eq4-lost``: r_c times the LoST cosine distance.
+    ``released``: the scoring of the authors' released code."""
+    density_filter: DensityFilter = "query"
+    """3x3 neighbourhood density test in the query image, in both images, or off."""
+    uniqueness_exclusion: int = 2
+    """Confidence compares the best score with the best candidate more than this many
+    reference frames away from it."""
+
+
+@dataclass(frozen=True)
+class SequenceConfig:
+    """Online sequence filter over a rolling window of verified candidates."""
+
+    length: int = 10
+    """L: frames in the rolling window."""
+    speeds: tuple[float, ...] = (0.0, 0.5, 0.8, 0.9, 1.0, 1.1, 1.2, 1.5, 2.0)
+    """Trajectory slopes searched, in reference frames per query frame (0 = stopped)."""
+    radius: float = 1.0
+    """A trajectory collects a frame's candidate within this many reference frames."""
+    penalty: float = 1.0
+    """Cost, in units of a frame's worst candidate cost, of a frame with no candidate near the trajectory."""
+
+
+@dataclass(frozen=True)
+class TrackerConfig:
+    """Recursive filter over route position and speed (filterpy)."""
+
+    enabled: bool = True
+    gate_sigma: float = 4.0
+    """Candidates further than this many standard deviations from the prediction are implausible."""
+    lost_after: int = 5
+    """Frames of disagreement before the state becomes ``not_localized``."""
+
+
+@dataclass(frozen=True)
+class Config:
+    """Everything lostx can be tuned by."""
+
+    backbone: BackboneConfig = field(default_factory=BackboneConfig)
+    lost: LostConfig = field(default_factory=LostConfig)
+    verify: VerifyConfig = field(default_factory=VerifyConfig)
+    sequence: SequenceConfig = field(default_factory=SequenceConfig)
+    tracker: TrackerConfig = field(default_factory=TrackerConfig)
+
+    def to_dict(self) -> dict[str, Any]:
+        return _plain(dataclasses.asdict(self))
+
+
+def _plain(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if isinstance(value, Path):
+        return str(value)
+    return value
+
+
+def config_from_dict(data: dict[str, Any], base: Config | None = None, source: str = "config") -> Config:
+    """Apply a nested mapping of overrides onto ``base`` (default: all defaults)."""
+    base = base or Config()
+    sections: dict[str, Any] = {}
+    hints = typing.get_type_hints(Config)
+    for name, values in data.items():
+        if name not in hints:
+            raise InputError(f"{source}: unknown section [{name}]; known: {', '.join(hints)}")
+        if not isinstance(values, dict):
+            raise InputError(f"{source}: [{name}] must be a table of settings")
+        sections[name] = _section(getattr(base, name), values, f"{source} [{name}]")
+    return dataclasses.replace(base, **sections)
+
+
+def _section(current: Any, values: dict[str, Any], where: str) -> Any:
+    hints = typing.get_type_hints(type(current))
+    changes: dict[str, Any] = {}
+    for key, value in values.items():
+        if key not in hints:
+            raise InputError(f"{where}: unknown setting '{key}'; known: {', '.join(hints)}")
+        changes[key] = _coerce(value, hints[key], f"{where} {key}")
+    return dataclasses.replace(current, **changes)
+
+
+def _coerce(value: Any, hint: Any, where: str) -> Any:
+    origin = typing.get_origin(hint)
+    args = typing.get_args(hint)
+    if origin is typing.Union or origin is getattr(__import__("types"), "UnionType", None):
+        if value is None and type(None) in args:
+            return None
+        inner = [a for a in args if a is not type(None)]
+        return _coerce(value, inner[0], where)
+    if origin is Literal:
+        if value not in args:
+            raise InputError(f"{where}: {value!r} is not one of {', '.join(map(repr, args))}")
+        return value
+    if origin is tuple:
+        if not isinstance(value, (list, tuple)):
+            raise InputError(f"{where}: expected a list, got {value!r}")
+        return tuple(_coerce(v, args[0], where) for v in value)
+    if origin is dict:
+        if not isinstance(value, dict):
+            raise InputError(f"{where}: expected a table, got {value!r}")
+        return {str(k): _coerce(v, args[1], where) for k, v in value.items()}
+    if hint is Path:
+        return Path(value)
+    if hint is float and isinstance(value, (int, float)) and not isinstance(value, bool):
+        return float(value)
+    if hint in (int, str, bool) and type(value) is hint:
+        return value
+    raise InputError(f"{where}: expected {getattr(hint, '__name__', hint)}, got {value!r}")
+
+
+def load_config(path: str | Path | None, base: Config | None = None) -> Config:
+    """Read overrides from a TOML file; ``None`` gives ``base`` or the defaults."""
+    if path is None:
+        return base or Config()
+    path = Path(path)
+    try:
+        data = tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise InputError(f"config file not found: {path}") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: not valid TOML ({exc})") from None
+    return config_from_dict(data, base, source=str(path))

@@ -1,0 +1,80 @@
+"""From a frame to what LoST-X needs of it: class probabilities, labels, class means, keypoints."""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from .backbone import Backbone, SemanticFrame
+from .classes import ClassGroups
+from .config import LostConfig
+from .errors import InputError
+from .keypoints import KeypointEvidence, frame_evidence
+from .lost import class_means, lost_descriptor, window_means
+
+
+@dataclass
+class DescribedFrame:
+    """One frame through the backbone, before its class means are chosen."""
+
+    features: np.ndarray  # (D, N) float32: x_i
+    group_probs: np.ndarray  # (G, N): m_is of the descriptor classes
+    labels: np.ndarray  # (h, w) uint8: l_i in the grouped label space (Eq. 3)
+    means: np.ndarray  # (G, D): this frame's own mu_s (Eq. 2)
+    present: np.ndarray  # (G,) bool: class s occurs in the frame
+    evidence: KeypointEvidence
+
+
+class LostDescriber:
+    """Runs the backbone and computes the frame-local parts of LoST and the keypoints."""
+
+    def __init__(self, backbone: Backbone, config: LostConfig | None = None) -> None:
+        self.backbone = backbone
+        self.config = config or LostConfig()
+        info = backbone.info
+        self.groups = ClassGroups.from_spec(self.config.classes or info.default_classes, info.class_names)
+        if self.config.reference_window < 1 or self.config.query_window < 1:
+            raise InputError("class-mean windows must be at least 1 frame")
+
+    def __call__(self, image: np.ndarray) -> DescribedFrame:
+        return self.from_semantic(self.backbone(image))
+
+    def from_semantic(self, semantic: SemanticFrame) -> DescribedFrame:
+        d, h, w = semantic.features.shape
+        features = semantic.features.reshape(d, h * w)
+        grouped = self.groups.group(semantic.probs).reshape(-1, h * w)
+        labels = grouped.argmax(axis=0).astype(np.uint8)  # Eq. 3
+        g = self.groups.n_groups
+        if not np.isfinite(features).all() or not np.isfinite(grouped).all():
+            raise InputError("the backbone produced non-finite features or probabilities for this frame")
+        means, present = class_means(features, labels, g)
+        return DescribedFrame(
+            features=features,
+            group_probs=grouped[:g],
+            labels=labels.reshape(h, w),
+            means=means,
+            present=present,
+            evidence=frame_evidence(semantic.features, labels.reshape(h, w)),
+        )
+
+    def descriptor(self, frame: DescribedFrame, means: np.ndarray) -> np.ndarray:
+        """Eq. 1 with the chosen class means (the frame's own, or a window's)."""
+        return lost_descriptor(frame.features, frame.group_probs, means)
+
+
+class TrailingMeans:
+    """Class means of a live query averaged over it and up to ``window - 1`` previous frames."""
+
+    def __init__(self, window: int) -> None:
+        self._recent: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=window)
+
+    def reset(self) -> None:
+        self._recent.clear()
+
+    def __call__(self, frame: DescribedFrame) -> np.ndarray:
+        self._recent.append((frame.means, frame.present))
+        mus = np.stack([m for m, _ in self._recent])
+        present = np.stack([p for _, p in self._recent])
+        return window_means(mus, present)[0]

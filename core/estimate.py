@@ -1,0 +1,119 @@
+"""What the localizer answers for each frame: an :class:`Estimate`.
+
+Everything in an Estimate is derived from the frames seen so far and the map;
+nothing depends on ground truth. ``evidence`` holds the heavy arrays needed to
+draw the match (label maps, keypoint correspondences, the sequence window);
+everything else is small and is what the result messages carry.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+
+from .verify import Correspondences
+
+State = Literal["localized", "not_localized"]
+STATES: tuple[str, ...] = ("localized", "not_localized")
+
+
+@dataclass
+class Candidate:
+    """One of the top-k reference frames of the single-frame search."""
+
+    index: int
+    """Reference frame index (0-based, map order)."""
+    distance: float
+    """Descriptor distance: LoST cosine distance, or thumbnail mean absolute difference."""
+    score: float
+    """Single-frame score, lower is better: the verification score for LoST-X (Eq. 4 family),
+    the descriptor distance where nothing is verified. ``inf`` where verification found no correspondence."""
+    correspondences: int = 0
+    """Keypoint correspondences that survived verification (0 for thumbnails)."""
+
+
+@dataclass
+class Evidence:
+    """Heavy per-frame arrays for visualisation; never sent in result messages."""
+
+    query_labels: np.ndarray | None = None
+    """(h, w) uint8 grouped semantic labels of the query (not mirrored)."""
+    correspondences: dict[int, Correspondences] = field(default_factory=dict)
+    """Surviving keypoint correspondences per candidate reference index."""
+    grid: tuple[int, int] | None = None
+    """(h, w) feature grid the keypoint coordinates refer to."""
+    sequence_window: np.ndarray | None = None
+    """(L, k) per-frame candidate costs in the sequence window, oldest row first (inf = no candidate)."""
+    sequence_candidates: np.ndarray | None = None
+    """(L, k) the reference indices behind ``sequence_window``; -1 where empty."""
+
+
+@dataclass
+class Estimate:
+    """The localizer's answer for one frame."""
+
+    frame_id: int
+    timestamp: float | None
+    state: State
+    """``localized``: the answer is trusted; ``not_localized``: the evidence does not agree
+    (warming up, off the map, or after a jump until the filter has re-acquired)."""
+    match_index: int
+    """Reference index of the answer (the best guess, also when not localized)."""
+    match_name: str
+    position: tuple[float, float] | None
+    """Map position of ``match_index`` where the map has positions."""
+    confidence: float
+    """In [0, 1]; higher is surer. Thresholding it trades precision against recall:
+    see :mod:`lostx.core.localizer` for how it is computed in each mode."""
+    score: float
+    """The method's own score of the answer, lower is better (sequence cost, or the
+    single-frame score without the sequence filter)."""
+    single_match_index: int
+    """The single-frame answer (best verified candidate)."""
+    candidates: list[Candidate]
+    """Top-k of the single-frame search, best single-frame score first."""
+    sequence_score: float | None = None
+    """Mean cost along the best trajectory through the window (None without the sequence filter)."""
+    speed: float | None = None
+    """Estimated speed in reference frames per query frame (None before it is known)."""
+    window: int = 0
+    """Frames in the sequence window; below the configured length while warming up."""
+    warming_up: bool = False
+    opposite: bool = False
+    """The query camera faced opposite to the map's."""
+    latency_ms: dict[str, float] = field(default_factory=dict)
+    """Milliseconds per stage (network, descriptor, search, verify, sequence, tracker, total)."""
+    evidence: Evidence | None = None
+
+    def summary(self) -> dict[str, Any]:
+        """Every field except the evidence, as plain Python types (JSON- and msgpack-ready)."""
+        return {
+            "frame_id": int(self.frame_id),
+            "timestamp": None if self.timestamp is None else float(self.timestamp),
+            "state": self.state,
+            "match_index": int(self.match_index),
+            "match_name": self.match_name,
+            "position": None if self.position is None else [float(v) for v in self.position],
+            "confidence": float(self.confidence),
+            "score": _num(self.score),
+            "single_match_index": int(self.single_match_index),
+            "candidates": [
+                {"index": int(c.index), "distance": _num(c.distance), "score": _num(c.score),
+                 "correspondences": int(c.correspondences)}
+                for c in self.candidates
+            ],
+            "sequence_score": None if self.sequence_score is None else _num(self.sequence_score),
+            "speed": None if self.speed is None else float(self.speed),
+            "window": int(self.window),
+            "warming_up": bool(self.warming_up),
+            "opposite": bool(self.opposite),
+            "latency_ms": {k: float(v) for k, v in self.latency_ms.items()},
+        }
+
+
+def _num(value: float) -> float | None:
+    """A finite float, or None for inf/nan (which JSON cannot carry)."""
+    value = float(value)
+    return value if np.isfinite(value) else None

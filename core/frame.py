@@ -1,0 +1,30 @@
+"""The frame: what every source (a folder, a dataset reader, a socket) hands the localizer."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+
+Camera = Literal["front", "rear"]
+CAMERAS: tuple[str, ...] = ("front", "rear")
+
+
+@dataclass
+class Frame:
+    """One camera frame in a traverse or a stream."""
+
+    id: int
+    """Frame number in its stream (0-based position in name order for a folder)."""
+    image: np.ndarray
+    """RGB uint8, H x W x 3."""
+    timestamp: float | None = None
+    """Seconds; ``None`` where the source has no clock."""
+    camera: Camera = "front"
+    """Which way the camera faces along the direction of travel."""
+    position: tuple[float, float] | None = None
+    """Ground-truth position, for evaluation only: the localizer never reads it."""
+    name: str = ""
+    """File name or other label of the frame."""
+    metadata: dict[str, Any] = field(default_factory=dict)

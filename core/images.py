@@ -1,0 +1,50 @@
+"""Reading frames from disk and checking that an array is a usable frame."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from .errors import ImageError, InputError
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".ppm", ".pgm", ".webp")
+
+
+def list_images(folder: str | Path) -> list[Path]:
+    """Image files directly inside ``folder``, in name order (the traverse order)."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise InputError(f"not a folder: {folder}")
+    files = sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
+    if not files:
+        raise InputError(f"no images in {folder} (looked for {', '.join(IMAGE_SUFFIXES)})")
+    return files
+
+
+def read_image(path: str | Path) -> np.ndarray:
+    """An RGB uint8 H x W x 3 frame; greyscale files are replicated to three channels."""
+    path = Path(path)
+    data = np.fromfile(path, dtype=np.uint8) if path.is_file() else None
+    if data is None:
+        raise ImageError(f"cannot read image {path}: no such file")
+    image = cv2.imdecode(data, cv2.IMREAD_COLOR) if data.size else None
+    if image is None:
+        raise ImageError(f"cannot read image {path}: not a decodable image ({data.size} bytes)")
+    return np.ascontiguousarray(image[:, :, ::-1])
+
+
+def check_frame(image: object, where: str = "frame") -> np.ndarray:
+    """Return ``image`` as an H x W x 3 uint8 array, or raise naming what is wrong."""
+    if not isinstance(image, np.ndarray):
+        raise ImageError(f"{where}: expected a numpy array, got {type(image).__name__}")
+    if image.ndim == 2:
+        image = np.repeat(image[:, :, None], 3, axis=2)
+    if image.ndim != 3 or image.shape[2] != 3:
+        raise ImageError(f"{where}: expected an H x W x 3 image, got shape {image.shape}")
+    if image.dtype != np.uint8:
+        raise ImageError(f"{where}: expected uint8 pixels, got {image.dtype}")
+    if image.shape[0] < 16 or image.shape[1] < 16:
+        raise ImageError(f"{where}: image of {image.shape[1]}x{image.shape[0]} pixels is too small")
+    return image

@@ -1,0 +1,115 @@
+"""Semantic keypoints (paper Sec. III-B): one per feature channel, at its arg-max location.
+
+Channel k of the query corresponds to channel k of the reference, giving D
+correspondences per image pair. Many channels peak at the same few locations
+(about 245 distinct locations for 448 channels on MOSAIC's 32 x 32 grid), so a
+frame's evidence keeps the D-dim feature vectors only once per distinct
+keypoint location, its *slots*, and of each only the non-zero entries (ReLU
+features are about 90 % zeros), in compressed sparse rows.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+NO_KEYPOINT = -1
+
+
+def argmax_keypoints(features: np.ndarray) -> np.ndarray:
+    """(D, N) features -> (D,) flat arg-max location per channel; -1 for a channel that never fires
+    (constant over the frame), which therefore has no keypoint."""
+    flat = features.reshape(features.shape[0], -1)
+    keypoints = flat.argmax(axis=1).astype(np.int32)
+    keypoints[flat.max(axis=1) <= flat.min(axis=1)] = NO_KEYPOINT
+    return keypoints
+
+
+@dataclass
+class KeypointEvidence:
+    """What verification needs from C frames, stacked.
+
+    Slot r is the distinct keypoint location ``slot_keys[r] = c * N + location``
+    of frame c (sorted); its feature vector is sparse: channels
+    ``channels[slot_offsets[r]:slot_offsets[r + 1]]`` hold ``values[...]``, the
+    other channels are zero.
+    """
+
+    keypoints: np.ndarray  # (C, D) int32, -1 = no keypoint
+    labels: np.ndarray  # (C, N) uint8 grouped labels
+    slot_keys: np.ndarray  # (S,) int64, sorted
+    slot_offsets: np.ndarray  # (S + 1,) int64
+    channels: np.ndarray  # (E,) int channel of each non-zero entry
+    values: np.ndarray  # (E,) float32 its value
+    slot_norms: np.ndarray  # (S,) float32 L2 norm of each slot's feature vector
+    grid: tuple[int, int]
+    feature_dim: int
+
+    @property
+    def n_frames(self) -> int:
+        return int(self.keypoints.shape[0])
+
+    @property
+    def n_locations(self) -> int:
+        return int(self.labels.shape[1])
+
+    def slot_rows(self, frame: np.ndarray | int, location: np.ndarray) -> np.ndarray:
+        """Slot row of each (frame, keypoint location) pair; the location must be a keypoint of the frame."""
+        keys = np.asarray(frame, dtype=np.int64) * self.n_locations + location
+        return np.searchsorted(self.slot_keys, keys)
+
+    def dense_slots(self) -> np.ndarray:
+        """(S, D) float32 feature vectors of all slots."""
+        dense = np.zeros((len(self.slot_keys), self.feature_dim), dtype=np.float32)
+        rows = np.repeat(np.arange(len(self.slot_keys)), np.diff(self.slot_offsets))
+        dense[rows, self.channels] = self.values
+        return dense
+
+    @classmethod
+    def stack(cls, frames: list["KeypointEvidence"]) -> "KeypointEvidence":
+        n = frames[0].n_locations
+        entries = np.cumsum([0] + [len(f.channels) for f in frames])
+        return cls(
+            keypoints=np.concatenate([f.keypoints for f in frames]),
+            labels=np.concatenate([f.labels for f in frames]),
+            slot_keys=np.concatenate([f.slot_keys + i * n for i, f in enumerate(frames)]),
+            slot_offsets=np.concatenate(
+                [[0]] + [f.slot_offsets[1:] + entries[i] for i, f in enumerate(frames)]
+            ).astype(np.int64),
+            channels=np.concatenate([f.channels for f in frames]),
+            values=np.concatenate([f.values for f in frames]),
+            slot_norms=np.concatenate([f.slot_norms for f in frames]),
+            grid=frames[0].grid,
+            feature_dim=frames[0].feature_dim,
+        )
+
+
+def sparse_slots(dense: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(S, D) slot features -> CSR (offsets (S + 1,), channels (E,), values (E,))."""
+    dense = np.ascontiguousarray(dense)
+    flat = np.flatnonzero(dense)
+    rows, channels = np.divmod(flat, dense.shape[1])
+    offsets = np.concatenate([[0], np.cumsum(np.bincount(rows, minlength=dense.shape[0]))]).astype(np.int64)
+    return offsets, channels.astype(np.int32), dense.ravel()[flat].astype(np.float32)
+
+
+def frame_evidence(features: np.ndarray, labels: np.ndarray) -> KeypointEvidence:
+    """Evidence of one frame from its dense features (D, h, w) and grouped labels (h, w)."""
+    d, h, w = features.shape
+    flat = features.reshape(d, h * w)
+    keypoints = argmax_keypoints(flat)
+    slots = np.unique(keypoints[keypoints >= 0]).astype(np.int64)
+    dense = np.take(flat, slots, axis=1).T
+    offsets, channels, values = sparse_slots(dense)
+    return KeypointEvidence(
+        keypoints=keypoints[None],
+        labels=labels.reshape(1, h * w).astype(np.uint8),
+        slot_keys=slots,
+        slot_offsets=offsets,
+        channels=channels,
+        values=values,
+        slot_norms=np.linalg.norm(dense, axis=1).astype(np.float32),
+        grid=(h, w),
+        feature_dim=d,
+    )

@@ -1,0 +1,175 @@
+"""Single-frame place matching: describe, search the top k, verify, rank."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Iterable, Iterator
+
+import numpy as np
+
+from .backbone import Backbone, load_backbone
+from .config import BackboneConfig, Config
+from .describe import LostDescriber, TrailingMeans
+from .errors import MapError
+from .frame import Frame
+from .images import check_frame
+from .lost import RunningStandardiser
+from .refmap import ReferenceMap
+from .search import cosine_distances, sad_distances, top_k
+from .thumbnail import ThumbnailDescriber
+from .verify import Correspondences, verify
+
+
+@dataclass
+class MatchResult:
+    """One query frame's single-frame answer. Candidates are ranked best first by ``scores``."""
+
+    candidates: np.ndarray
+    """(k,) reference indices, best first."""
+    distances: np.ndarray
+    """(k,) descriptor distances: LoST cosine distance, or thumbnail SAD."""
+    scores: np.ndarray
+    """(k,) the method's score, lower is better: the verification score for LoST-X,
+    the descriptor distance where nothing is verified."""
+    confidence: float
+    """Uniqueness in [0, 1]: 1 - best score / best score of a candidate more than
+    ``uniqueness_exclusion`` reference frames away from the match (1 when there is none)."""
+    n_matches: np.ndarray | None = None
+    """(k,) keypoint correspondences that survived verification."""
+    correspondences: list[Correspondences] | None = None
+    """Per candidate, in the same order."""
+    query_labels: np.ndarray | None = None
+    """(h, w) grouped semantic labels of the query."""
+    timings: dict[str, float] = field(default_factory=dict)
+    """Seconds per stage: network, descriptor, search, verify."""
+
+    @property
+    def best(self) -> int:
+        return int(self.candidates[0])
+
+    @property
+    def score(self) -> float:
+        return float(self.scores[0])
+
+
+def uniqueness(candidates: np.ndarray, scores: np.ndarray, exclusion: int) -> float:
+    """1 - s_best / s_alt, s_alt the best score more than ``exclusion`` frames from the best candidate.
+
+    Scores are ranked best first. 0 means an equally good answer elsewhere on the route.
+    """
+    if len(scores) == 0 or not np.isfinite(scores[0]):
+        return 0.0
+    far = np.abs(candidates - candidates[0]) > exclusion
+    if not far.any():
+        return 1.0
+    alt = float(scores[far].min())
+    if not np.isfinite(alt):
+        return 1.0
+    if alt <= 0.0:
+        return 0.0
+    return float(np.clip(1.0 - scores[0] / alt, 0.0, 1.0))
+
+
+class PlaceMatcher:
+    """Matches single frames against a reference map. Stateful only through the causal
+    query normalisation and the trailing class-mean window; ``reset()`` clears both."""
+
+    def __init__(self, refmap: ReferenceMap, config: Config | None = None, backbone: Backbone | None = None) -> None:
+        self.map = refmap
+        self.config = config or Config()
+        self.describer: LostDescriber | ThumbnailDescriber
+        if refmap.kind == "lost":
+            if backbone is None:
+                name = (refmap.backbone or {}).get("name", self.config.backbone.name)
+                cfg = self.config.backbone
+                if cfg.name != name:
+                    cfg = BackboneConfig(name=name, model_path=None, device=cfg.device, threads=cfg.threads)
+                backbone = load_backbone(cfg)
+            refmap.check_backbone(backbone.info)
+            lost_cfg = self.config.lost
+            classes = refmap.manifest.get("classes")
+            self.describer = LostDescriber(backbone, lost_cfg if classes is None else _with_classes(lost_cfg, classes))
+            if list(self.describer.groups.label_names) != refmap.manifest.get("label_names"):
+                raise MapError(f"{refmap.path}: the map's semantic classes differ from the configured ones")
+            self.normaliser = RunningStandardiser(
+                refmap.stats, lost_cfg.prior_frames, running=lost_cfg.normalisation == "running"
+            )
+            self.means = TrailingMeans(lost_cfg.query_window)
+        else:
+            settings = refmap.manifest.get("thumbnail", {})
+            self.describer = ThumbnailDescriber(tuple(settings.get("size", (64, 32))), settings.get("patch", 8))
+
+    def reset(self) -> None:
+        if isinstance(self.describer, LostDescriber):
+            self.normaliser.reset()
+            self.means.reset()
+
+    def match(self, image: np.ndarray, opposite: bool = False) -> MatchResult:
+        image = check_frame(image)
+        if isinstance(self.describer, ThumbnailDescriber):
+            return self._match_thumbnail(image, opposite)
+        return self._match_lost(image, opposite)
+
+    def _match_thumbnail(self, image: np.ndarray, opposite: bool) -> MatchResult:
+        t0 = time.perf_counter()
+        query = self.describer(image[:, ::-1] if opposite else image)
+        t1 = time.perf_counter()
+        distances = sad_distances(query, self.map.descriptors)
+        order = top_k(distances, self.config.verify.top_k)
+        t2 = time.perf_counter()
+        ranked = distances[order]
+        return MatchResult(
+            candidates=order,
+            distances=ranked,
+            scores=ranked,
+            confidence=uniqueness(order, ranked, self.config.verify.uniqueness_exclusion),
+            timings={"network": 0.0, "descriptor": t1 - t0, "search": t2 - t1, "verify": 0.0},
+        )
+
+    def _match_lost(self, image: np.ndarray, opposite: bool) -> MatchResult:
+        describer = self.describer
+        assert isinstance(describer, LostDescriber)
+        cfg = self.config.verify
+        t0 = time.perf_counter()
+        semantic = describer.backbone(image)
+        t1 = time.perf_counter()
+        frame = describer.from_semantic(semantic)
+        descriptor = self.normaliser(describer.descriptor(frame, self.means(frame)))
+        t2 = time.perf_counter()
+        distances = cosine_distances(descriptor, self.map.descriptors)
+        shortlist = top_k(distances, cfg.top_k)
+        t3 = time.perf_counter()
+        result = verify(
+            frame.evidence,
+            self.map.evidence(shortlist),
+            distances[shortlist],
+            opposite=opposite,
+            scoring=cfg.scoring,
+            density=cfg.density_filter,
+        )
+        rank = np.lexsort((np.arange(len(shortlist)), result.scores))
+        t4 = time.perf_counter()
+        candidates, scores = shortlist[rank], result.scores[rank]
+        return MatchResult(
+            candidates=candidates,
+            distances=distances[candidates],
+            scores=scores,
+            confidence=uniqueness(candidates, scores, cfg.uniqueness_exclusion),
+            n_matches=result.n_matches[rank],
+            correspondences=[result.correspondences(int(c)) for c in rank],
+            query_labels=frame.labels,
+            timings={"network": t1 - t0, "descriptor": t2 - t1, "search": t3 - t2, "verify": t4 - t3},
+        )
+
+
+def _with_classes(config, classes: dict) -> "object":
+    import dataclasses
+
+    return dataclasses.replace(config, classes={k: tuple(v) for k, v in classes.items()})
+
+
+def match_frames(matcher: PlaceMatcher, frames: Iterable[Frame], opposite: bool = False) -> Iterator[tuple[Frame, MatchResult]]:
+    """Match a traverse frame by frame, in order (the normalisation is causal)."""
+    for frame in frames:
+        yield frame, matcher.match(frame.image, opposite=opposite)

@@ -1,0 +1,45 @@
+"""The ``lostx`` command: a thin layer over the Python API.
+
+Each sub-command lives in ``lostx/commands/<name>.py`` with a ``register``
+function. Errors on bad input are one line on stderr and a non-zero exit code.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from lostx import __version__
+from lostx.core.errors import LostxError
+
+COMMANDS = ("demo", "map", "match", "backbones")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="lostx",
+        description="Streaming LoST-X place recognition: opposite viewpoints, day and night.",
+    )
+    parser.add_argument("--version", action="version", version=f"lostx {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for name in COMMANDS:
+        importlib.import_module(f"lostx.commands.{name}").register(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.run(args) or 0)
+    except LostxError as exc:
+        print(f"lostx: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("lostx: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,72 @@
+"""``lostx map build`` and ``lostx map info``."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from lostx.core.backbone import load_backbone
+from lostx.core.build import build_map
+from lostx.core.describe import LostDescriber
+from lostx.core.refmap import ReferenceMap
+from lostx.core.thumbnail import ThumbnailDescriber
+from lostx.options import add_config_options, config_from_args
+from lostx.replay.folder import folder_traverse
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    parser = sub.add_parser("map", help="build or inspect reference maps")
+    verbs = parser.add_subparsers(dest="verb", metavar="VERB", required=True)
+
+    build = verbs.add_parser("build", help="build a reference map from a folder of images (name order)")
+    build.add_argument("images", type=Path, help="folder of the traverse's images")
+    build.add_argument("--out", type=Path, required=True, help="map folder to write")
+    build.add_argument("--positions", type=Path, help="CSV of positions (file,x,y or lat,lon; optional timestamp)")
+    build.add_argument("--camera", choices=["front", "rear"], default="front", help="camera direction of the traverse")
+    build.add_argument("--descriptor", choices=["lost", "thumbnail"], default="lost",
+                       help="LoST-X (default) or SeqSLAM thumbnails (no network)")
+    build.add_argument("--overwrite", action="store_true", help="replace an existing map at --out")
+    build.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_config_options(build)
+    build.set_defaults(run=run_build)
+
+    info = verbs.add_parser("info", help="describe a map")
+    info.add_argument("map", type=Path)
+    info.add_argument("--verify", action="store_true", help="also check every file's checksum")
+    info.set_defaults(run=run_info)
+
+
+def run_build(args: argparse.Namespace) -> int:
+    config = config_from_args(args)
+    traverse = folder_traverse(args.images, args.positions, camera=args.camera)
+    if args.descriptor == "lost":
+        describer: LostDescriber | ThumbnailDescriber = LostDescriber(load_backbone(config.backbone), config.lost)
+    else:
+        describer = ThumbnailDescriber()
+    metadata = {"camera": args.camera, "image_root": str(traverse.root.resolve())}
+    summary = build_map(traverse, args.out, config, describer, metadata, overwrite=args.overwrite,
+                        total=len(traverse), progress=not args.quiet)
+    print(
+        f"built {summary.path}: {summary.n_frames} frames ({args.descriptor}) in {summary.seconds:.1f} s, "
+        f"{summary.bytes / 1e6:.2f} MB ({summary.bytes_per_frame / 1e3:.1f} kB per frame)"
+    )
+    return 0
+
+
+def run_info(args: argparse.Namespace) -> int:
+    refmap = ReferenceMap.open(args.map, verify_checksums=args.verify)
+    m = refmap.manifest
+    backbone = m.get("backbone") or {}
+    print(f"map        {refmap.path}")
+    print(f"kind       {refmap.kind}, format version {m['version']}, built {m['created']}")
+    print(f"frames     {refmap.n_frames} ({refmap.camera} camera) from {m.get('image_root', '?')}")
+    if backbone:
+        print(f"backbone   {backbone['name']} ({backbone['model_file']}, md5 {backbone['model_md5']})")
+        print(f"features   {backbone['feature_dim']} channels on a {backbone['grid'][0]}x{backbone['grid'][1]} grid")
+    if m.get("classes"):
+        print("classes    " + "; ".join(f"{k}: {', '.join(v)}" for k, v in m["classes"].items()))
+    print(f"positions  {'yes' if refmap.positions is not None else 'no'}")
+    print(f"size       {refmap.nbytes / 1e6:.2f} MB ({refmap.nbytes / refmap.n_frames / 1e3:.1f} kB per frame)")
+    if args.verify:
+        print("checksums  all files match")
+    return 0

@@ -1,0 +1,130 @@
+"""Positions (and timestamps) of a traverse's frames from a CSV file.
+
+The CSV has a header row. Recognised columns (case-insensitive):
+
+- ``file`` (or ``filename``, ``image``, ``name``): the image file name. Optional:
+  without it, row k belongs to the k-th image in name order.
+- ``x`` and ``y`` (or ``easting`` and ``northing``) in metres, or
+  ``lat`` and ``lon`` (or ``latitude`` and ``longitude``) in degrees, which are
+  projected to local metres (east, north) about the first row.
+- ``timestamp`` (or ``time``, ``t``) in seconds. Optional.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from lostx.core.errors import InputError
+
+EARTH_RADIUS_M = 6_371_008.8
+_FILE = ("file", "filename", "image", "name")
+_XY = (("x", "y"), ("easting", "northing"))
+_LATLON = (("lat", "lon"), ("latitude", "longitude"))
+_TIME = ("timestamp", "time", "t")
+
+
+@dataclass
+class PositionTable:
+    positions: np.ndarray  # (N, 2) metres
+    timestamps: np.ndarray | None  # (N,) seconds
+    files: list[str] | None  # file name per row, if the CSV names them
+    geographic: bool  # read from lat/lon
+    origin: tuple[float, float] | None = None  # (lat, lon) of the projection origin
+
+
+def latlon_to_local(lat: np.ndarray, lon: np.ndarray, origin: tuple[float, float]) -> np.ndarray:
+    """Equirectangular projection to metres east and north of ``origin``; exact enough over a few km."""
+    lat0, lon0 = origin
+    east = np.radians(lon - lon0) * EARTH_RADIUS_M * math.cos(math.radians(lat0))
+    north = np.radians(lat - lat0) * EARTH_RADIUS_M
+    return np.stack([east, north], axis=1)
+
+
+def read_positions(path: str | Path) -> PositionTable:
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except FileNotFoundError:
+        raise InputError(f"positions file not found: {path}") from None
+    except UnicodeDecodeError:
+        raise InputError(f"{path}: not a text CSV file") from None
+    rows = list(csv.reader(text.splitlines()))
+    if not rows:
+        raise InputError(f"{path}: empty positions file (expected a header row such as 'file,x,y')")
+    header = [h.strip().lower() for h in rows[0]]
+    col = {name: i for i, name in enumerate(header)}
+
+    def find(names: tuple[str, ...]) -> int | None:
+        return next((col[n] for n in names if n in col), None)
+
+    pair = next(((col[a], col[b]) for a, b in _XY if a in col and b in col), None)
+    geographic = False
+    if pair is None:
+        pair = next(((col[a], col[b]) for a, b in _LATLON if a in col and b in col), None)
+        geographic = True
+    if pair is None:
+        raise InputError(
+            f"{path}:1: header {rows[0]} has no position columns; expected x,y (metres) or lat,lon (degrees)"
+        )
+    file_col, time_col = find(_FILE), find(_TIME)
+    values, stamps, files = [], [], []
+    for line, row in enumerate(rows[1:], start=2):
+        if not row or all(not cell.strip() for cell in row):
+            continue
+        needed = [c for c in (*pair, file_col, time_col) if c is not None]
+        if len(row) <= max(needed):
+            raise InputError(f"{path}:{line}: expected {len(header)} columns, got {len(row)}: {row}")
+        try:
+            a, b = float(row[pair[0]]), float(row[pair[1]])
+            t = float(row[time_col]) if time_col is not None else None
+        except ValueError:
+            raise InputError(f"{path}:{line}: not a number in {row}") from None
+        if not (math.isfinite(a) and math.isfinite(b)) or (t is not None and not math.isfinite(t)):
+            raise InputError(f"{path}:{line}: non-finite value in {row}")
+        if geographic and not (-90 <= a <= 90 and -180 <= b <= 180):
+            raise InputError(f"{path}:{line}: latitude/longitude out of range: {a}, {b}")
+        values.append((a, b))
+        stamps.append(t)
+        if file_col is not None:
+            files.append(row[file_col].strip())
+    if not values:
+        raise InputError(f"{path}: no position rows after the header")
+    coords = np.asarray(values, dtype=np.float64)
+    origin = None
+    if geographic:
+        origin = (float(coords[0, 0]), float(coords[0, 1]))
+        coords = latlon_to_local(coords[:, 0], coords[:, 1], origin)
+    return PositionTable(
+        positions=coords,
+        timestamps=np.asarray(stamps, dtype=np.float64) if time_col is not None else None,
+        files=files if file_col is not None else None,
+        geographic=geographic,
+        origin=origin,
+    )
+
+
+def align_positions(table: PositionTable, names: list[str], source: Path) -> tuple[np.ndarray, np.ndarray | None]:
+    """Positions (and timestamps) in the order of the image ``names``."""
+    if table.files is None:
+        if len(table.positions) != len(names):
+            raise InputError(
+                f"{source}: {len(table.positions)} position rows for {len(names)} images; "
+                f"add a 'file' column or give one row per image in name order"
+            )
+        return table.positions, table.timestamps
+    index = {}
+    for row, name in enumerate(table.files):
+        if name in index:
+            raise InputError(f"{source}:{row + 2}: file {name} is listed twice")
+        index[name] = row
+    missing = [n for n in names if n not in index]
+    if missing:
+        raise InputError(f"{source}: no position for {len(missing)} image(s), e.g. {', '.join(missing[:3])}")
+    order = np.asarray([index[n] for n in names])
+    stamps = table.timestamps[order] if table.timestamps is not None else None
+    return table.positions[order], stamps
