@@ -22,6 +22,7 @@ import numpy as np
 
 from .config import BackboneConfig
 from .errors import ModelError
+from .paths import models_dir
 
 
 @dataclass(frozen=True)
@@ -95,18 +96,6 @@ def default_model_paths() -> dict[str, Path]:
     """Each registered backbone's default model file in the models folder."""
     _load_builtin()
     return {name: models_dir() / _REGISTRY[name][0] for name in sorted(_REGISTRY)}
-
-
-def models_dir() -> Path:
-    """Where model files are looked for: ``$LOSTX_MODELS``, else ``../shared/models``."""
-    env = os.environ.get("LOSTX_MODELS")
-    if env:
-        return Path(env)
-    here = Path.cwd() / ".." / "shared" / "models"
-    if here.is_dir():
-        return here.resolve()
-    repo = Path(__file__).resolve().parents[1] / ".." / "shared" / "models"
-    return repo.resolve() if repo.is_dir() else here
 
 
 def resolve_model_path(config: BackboneConfig) -> Path:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import os
 from pathlib import Path
 
 import numpy as np
@@ -14,23 +13,10 @@ from lostx.core.matcher import PlaceMatcher
 from lostx.core.backbone import load_backbone
 from lostx.core.build import build_map
 from lostx.core.describe import LostDescriber
+from lostx.core.paths import cache_dir, data_dir
 from lostx.core.refmap import ReferenceMap
 from lostx.options import add_backbone_options, config_from_args
 from lostx.replay.folder import folder_traverse
-
-
-def default_data_dir() -> Path:
-    env = os.environ.get("LOSTX_DATA")
-    if env:
-        return Path(env)
-    for base in (Path.cwd() / ".." / "shared" / "data", Path(__file__).resolve().parents[2] / ".." / "shared" / "data"):
-        if base.is_dir():
-            return base.resolve()
-    return Path.cwd() / ".." / "shared" / "data"
-
-
-def default_workdir() -> Path:
-    return Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "lostx" / "demo"
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -63,10 +49,10 @@ def demo_map(day: Path, out: Path, config: Config, rebuild: bool) -> ReferenceMa
 
 def run(args: argparse.Namespace) -> int:
     config = config_from_args(args)
-    data = (args.data or default_data_dir()) / "robotcar-daynight"
+    data = (args.data or data_dir()) / "robotcar-daynight"
     if not (data / "day").is_dir() or not (data / "night").is_dir():
         raise InputError(f"demo data not found: {data} should hold day/ and night/ (pass --data or set LOSTX_DATA)")
-    workdir = args.workdir or default_workdir()
+    workdir = args.workdir or cache_dir() / "demo"
     refmap = demo_map(data / "day", workdir / f"robotcar-day-{config.backbone.name}", config, args.rebuild)
     matcher = PlaceMatcher(refmap, config)
     night = folder_traverse(data / "night")
