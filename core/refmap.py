@@ -298,6 +298,14 @@ class ReferenceMap:
         root = self.image_root
         return root / self.names[index] if root else None
 
+    def labels(self, index: int) -> np.ndarray:
+        """(h, w) uint8 grouped semantic labels of reference frame ``index`` (LoST maps)."""
+        return np.asarray(self._arrays["labels"][index]).reshape(self.grid)
+
+    @property
+    def label_names(self) -> list[str]:
+        return list(self.manifest.get("label_names", []))
+
     @property
     def nbytes(self) -> int:
         return sum(int(e["bytes"]) for e in self.manifest["arrays"].values())
