@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
+import importlib
 import os
 import sys
 from dataclasses import dataclass
@@ -74,35 +75,48 @@ class Backbone(Protocol):
     def __call__(self, image: np.ndarray) -> SemanticFrame: ...
 
 
-_REGISTRY: dict[str, tuple[str, Callable[[BackboneConfig, Path], Backbone]]] = {}
+BackboneFactory = Callable[[BackboneConfig, Path], Backbone]
+
+# Built-in backbones: name -> (default model file, "module:factory"), imported only when loaded.
+_BUILTIN: dict[str, tuple[str, str]] = {
+    "mosaic-ade20k": ("mosaic-r4-ade20k31-uint8.tflite", "lostx.core.mosaic:MosaicBackbone"),
+}
+_REGISTERED: dict[str, tuple[str, BackboneFactory]] = {}
 
 
-def register_backbone(name: str, default_file: str) -> Callable:
-    """Class decorator: make a backbone loadable by ``name``; ``default_file`` is looked up in the models folder."""
+def register_backbone(name: str, default_file: str) -> Callable[[BackboneFactory], BackboneFactory]:
+    """Decorator for a backbone class or factory ``(config, model_path) -> Backbone`` of your own;
+    ``default_file`` is looked up in the models folder when no model path is given."""
 
-    def wrap(factory: Callable[[BackboneConfig, Path], Backbone]) -> Callable:
-        _REGISTRY[name] = (default_file, factory)
+    def wrap(factory: BackboneFactory) -> BackboneFactory:
+        _REGISTERED[name] = (default_file, factory)
         return factory
 
     return wrap
 
 
+def _entry(name: str) -> tuple[str, BackboneFactory]:
+    if name in _REGISTERED:
+        return _REGISTERED[name]
+    if name in _BUILTIN:
+        default_file, target = _BUILTIN[name]
+        module, attr = target.split(":")
+        return default_file, getattr(importlib.import_module(module), attr)
+    raise ModelError(f"unknown backbone '{name}'; available: {', '.join(backbone_names())}")
+
+
 def backbone_names() -> list[str]:
-    _load_builtin()
-    return sorted(_REGISTRY)
+    return sorted(set(_BUILTIN) | set(_REGISTERED))
 
 
 def default_model_paths() -> dict[str, Path]:
-    """Each registered backbone's default model file in the models folder."""
-    _load_builtin()
-    return {name: models_dir() / _REGISTRY[name][0] for name in sorted(_REGISTRY)}
+    """Each backbone's default model file in the models folder."""
+    files = {name: entry[0] for name, entry in {**_BUILTIN, **_REGISTERED}.items()}
+    return {name: models_dir() / files[name] for name in backbone_names()}
 
 
 def resolve_model_path(config: BackboneConfig) -> Path:
-    _load_builtin()
-    if config.name not in _REGISTRY:
-        raise ModelError(f"unknown backbone '{config.name}'; available: {', '.join(sorted(_REGISTRY))}")
-    default_file, _ = _REGISTRY[config.name]
+    default_file, _ = _entry(config.name)
     path = Path(config.model_path) if config.model_path else models_dir() / default_file
     if not path.is_file():
         raise ModelError(
@@ -116,8 +130,7 @@ def load_backbone(config: BackboneConfig | None = None) -> Backbone:
     """Load the backbone ``config.name`` from ``config.model_path`` (or the models folder)."""
     config = config or BackboneConfig()
     path = resolve_model_path(config)
-    _, factory = _REGISTRY[config.name]
-    return factory(config, path)
+    return _entry(config.name)[1](config, path)
 
 
 def file_md5(path: Path) -> str:
@@ -147,8 +160,3 @@ def softmax(logits: np.ndarray, axis: int) -> np.ndarray:
     np.exp(shifted, out=shifted)
     shifted /= shifted.sum(axis=axis, keepdims=True)
     return shifted
-
-
-def _load_builtin() -> None:
-    """Import the modules that register the built-in backbones."""
-    from . import mosaic  # noqa: F401

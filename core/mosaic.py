@@ -14,7 +14,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .backbone import BackboneInfo, Quantisation, SemanticFrame, file_md5, quiet_stderr, register_backbone, softmax
+from .backbone import BackboneInfo, Quantisation, SemanticFrame, file_md5, quiet_stderr, softmax
 from .config import BackboneConfig
 from .errors import ModelError
 from .images import check_frame
@@ -34,7 +34,6 @@ FEATURE_TENSOR = "MobilenetV3/Conv_1/Relu"
 SCORES_TENSOR = "decoder/add"
 
 
-@register_backbone("mosaic-ade20k", "mosaic-r4-ade20k31-uint8.tflite")
 class MosaicBackbone:
     """The default backbone: about 30 ms per frame on two CPU cores."""
 
