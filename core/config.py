@@ -77,27 +77,42 @@ class VerifyConfig:
 
 @dataclass(frozen=True)
 class SequenceConfig:
-    """Online sequence filter over a rolling window of verified candidates."""
+    """Online sequence filter over a rolling window of frames (see lostx.core.sequence)."""
 
+    enabled: bool = True
+    """Answer with the sequence filter (``False``: single-frame answers)."""
     length: int = 10
     """L: frames in the rolling window."""
     speeds: tuple[float, ...] = (0.0, 0.5, 0.8, 0.9, 1.0, 1.1, 1.2, 1.5, 2.0)
     """Trajectory slopes searched, in reference frames per query frame (0 = stopped)."""
-    radius: float = 1.0
-    """A trajectory collects a frame's candidate within this many reference frames."""
-    penalty: float = 1.0
-    """Cost, in units of a frame's worst candidate cost, of a frame with no candidate near the trajectory."""
+    anchors: int = 20
+    """Trajectories are anchored at each frame's verified candidates and its this many lowest-cost references."""
+    radius: int = 0
+    """A trajectory takes a frame's lowest cost within this many reference frames of its line."""
+    contrast_window: int = 10
+    """References around each one that its cost is normalised against (SeqSLAM's contrast enhancement)."""
+    penalty: float = 0.0
+    """Cost of a trajectory point off the map, or of a frame without costs (0 = an average reference)."""
+    exclusion: int = 5
+    """Confidence compares the best trajectory with the best one ending more than this many
+    reference frames away."""
 
 
 @dataclass(frozen=True)
 class TrackerConfig:
-    """Recursive filter over route position and speed (filterpy)."""
+    """Recursive filter over route position and speed (see lostx.core.tracker)."""
 
     enabled: bool = True
     gate_sigma: float = 4.0
-    """Candidates further than this many standard deviations from the prediction are implausible."""
-    lost_after: int = 5
-    """Frames of disagreement before the state becomes ``not_localized``."""
+    """Answers further than this many innovation standard deviations from the prediction are implausible."""
+    relocalise_after: int = 3
+    """Consecutive implausible but mutually consistent answers that restart the track (a genuine jump)."""
+    position_sigma: float = 2.0
+    """Measurement noise of a sequence answer, in reference frames."""
+    speed_sigma: float = 0.5
+    """Initial uncertainty of the speed, in reference frames per frame."""
+    acceleration_sigma: float = 0.05
+    """Process noise: how fast the speed may change, per frame."""
 
 
 @dataclass(frozen=True)

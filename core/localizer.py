@@ -1,20 +1,52 @@
 """The online localizer: one frame in, one place estimate out.
 
-``Localizer(map, config).step(frame) -> Estimate``. This first version answers
-from the single frame; the sequence filter and the recursive tracker plug in
-behind the same interface.
+``Localizer(map, config).step(frame) -> Estimate`` runs, per frame:
+
+1. the single-frame match (:class:`PlaceMatcher`: describe, search, verify);
+2. the sequence filter (:class:`SequenceFilter`) over the last L frames, fed
+   with the frame's candidates and its contrast-normalised cost for every
+   reference; its best trajectory gives the position and speed;
+3. the route tracker (:class:`RouteTracker`, a Kalman filter), which gates
+   implausible jumps, narrows the speeds searched next, and restarts after a
+   genuine jump.
+
+Confidence, in [0, 1], higher is surer:
+
+- with the sequence filter: 1 - exp(-m), where m is the margin of the best
+  trajectory's mean cost under the best trajectory ending more than
+  ``sequence.exclusion`` reference frames away, in units of the frames'
+  contrast-normalised costs (standard deviations); 0 when there is no margin;
+- single-frame (``sequence.enabled = False``): the verified uniqueness
+  1 - s_best / s_alt of :func:`lostx.core.matcher.uniqueness`;
+- always 0 when the state is ``not_localized``: while the window warms up
+  (fewer than L frames seen) and when the tracker finds the answer implausible.
+
+Bad input (a frame that is not an H x W x 3 uint8 image, non-finite network
+output, a timestamp earlier than the previous frame's) raises a
+:class:`LostxError` and leaves the localizer's state as it was, ready for the
+next good frame.
 """
 
 from __future__ import annotations
 
 import time
 
+import numpy as np
+
 from .backbone import Backbone
 from .config import Config
+from .errors import InputError
 from .estimate import Candidate, Estimate, Evidence
 from .frame import Frame
+from .images import check_frame
 from .matcher import MatchResult, PlaceMatcher
 from .refmap import ReferenceMap
+from .search import top_k
+from .sequence import SequenceFilter, SequenceResult, contrast_normalise
+from .tracker import RouteTracker
+from .verify import verify
+
+WINDOW_PICTURE_WIDTH = 15
 
 
 class Localizer:
@@ -24,43 +56,122 @@ class Localizer:
         self.map = refmap
         self.config = config or Config()
         self.matcher = PlaceMatcher(refmap, self.config, backbone)
+        seq = self.config.sequence
+        self.sequence = SequenceFilter(seq.length, seq.speeds, seq.radius, seq.penalty)
+        self.tracker = RouteTracker(self.config.tracker)
+        self._last_timestamp: float | None = None
 
     def reset(self) -> None:
         """Forget everything seen so far (start of a new traverse)."""
         self.matcher.reset()
+        self.sequence.reset()
+        self.tracker.reset()
+        self._last_timestamp = None
 
     def step(self, frame: Frame) -> Estimate:
         start = time.perf_counter()
+        check_frame(frame.image, f"frame {frame.id}")
+        if frame.timestamp is not None:
+            if not np.isfinite(frame.timestamp):
+                raise InputError(f"frame {frame.id}: timestamp {frame.timestamp} is not a finite number")
+            if self._last_timestamp is not None and frame.timestamp < self._last_timestamp:
+                raise InputError(
+                    f"frame {frame.id}: timestamp {frame.timestamp} is earlier than the previous frame's "
+                    f"{self._last_timestamp}; frames must arrive in time order (reset the localizer for a new traverse)"
+                )
         opposite = frame.camera != self.map.camera
         result = self.matcher.match(frame.image, opposite=opposite)
+        if frame.timestamp is not None:
+            self._last_timestamp = frame.timestamp
         latency = {k: 1e3 * v for k, v in result.timings.items()}
+        if self.config.sequence.enabled:
+            estimate = self._sequence_estimate(frame, result, opposite, latency)
+        else:
+            estimate = self._single_estimate(frame, result, opposite)
         latency["total"] = 1e3 * (time.perf_counter() - start)
-        return self._estimate(frame, result, opposite, latency)
+        estimate.latency_ms = latency
+        return estimate
 
-    def _estimate(self, frame: Frame, result: MatchResult, opposite: bool, latency: dict[str, float]) -> Estimate:
+    def _single_estimate(self, frame: Frame, result: MatchResult, opposite: bool) -> Estimate:
         index = result.best
+        return self._estimate(frame, result, opposite, index, "localized", result.confidence, result.score)
+
+    def _sequence_estimate(self, frame: Frame, result: MatchResult, opposite: bool, latency: dict) -> Estimate:
+        cfg = self.config.sequence
+        t0 = time.perf_counter()
+        costs = contrast_normalise(result.map_scores, cfg.contrast_window)
+        anchors = np.union1d(result.candidates, top_k(costs, cfg.anchors))
+        speeds = self._plausible_speeds()
+        seq = self.sequence.update(anchors, costs, speeds)
+        runner_up = self.sequence.runner_up(seq.position, cfg.exclusion)
+        margin = max(0.0, runner_up - seq.score) if np.isfinite(runner_up) else np.inf
+        confidence = float(1.0 - np.exp(-margin))
+        t1 = time.perf_counter()
+        warming = seq.frames < cfg.length
+        position, speed, state = seq.position, seq.speed, "localized"
+        if warming:
+            state = "not_localized"
+        elif self.config.tracker.enabled:
+            track = self.tracker.step(seq.position, seq.speed)
+            position, speed = track.position, track.speed
+            if not track.accepted:
+                state = "not_localized"
+        t2 = time.perf_counter()
+        latency["sequence"] = 1e3 * (t1 - t0)
+        latency["tracker"] = 1e3 * (t2 - t1)
+        index = int(np.clip(np.rint(position), 0, self.map.n_frames - 1))
+        estimate = self._estimate(frame, result, opposite, index, state,
+                                  confidence if state == "localized" else 0.0, seq.score)
+        estimate.sequence_score = seq.score
+        estimate.speed = float(speed)
+        estimate.window = seq.frames
+        estimate.warming_up = warming
+        if estimate.evidence is not None:
+            window, refs = self.sequence.window(WINDOW_PICTURE_WIDTH)
+            estimate.evidence.sequence_window = window
+            estimate.evidence.sequence_candidates = refs
+        return estimate
+
+    def _plausible_speeds(self) -> np.ndarray | None:
+        if not self.config.tracker.enabled:
+            return None
+        band = self.tracker.speed_range()
+        if band is None:
+            return None
+        speeds = np.asarray(self.config.sequence.speeds)
+        inside = speeds[(speeds >= band[0]) & (speeds <= band[1])]
+        return inside if len(inside) else speeds[[int(np.argmin(np.abs(speeds - sum(band) / 2)))]]
+
+    def _estimate(self, frame: Frame, result: MatchResult, opposite: bool, index: int, state: str,
+                  confidence: float, score: float) -> Estimate:
         return Estimate(
             frame_id=frame.id,
             timestamp=frame.timestamp,
-            state="localized",
+            state=state,  # type: ignore[arg-type]
             match_index=index,
             match_name=self.map.names[index],
             position=self._position(index),
-            confidence=result.confidence,
-            score=result.score,
-            single_match_index=index,
+            confidence=float(confidence),
+            score=float(score),
+            single_match_index=result.best,
             candidates=_candidates(result),
             opposite=opposite,
-            latency_ms=latency,
-            evidence=Evidence(
-                query_labels=result.query_labels,
-                correspondences=(
-                    {int(c): corr for c, corr in zip(result.candidates, result.correspondences)}
-                    if result.correspondences is not None else {}
-                ),
-                grid=getattr(self.map, "grid", None),
-            ),
+            evidence=self._evidence(result, index, opposite),
         )
+
+    def _evidence(self, result: MatchResult, index: int, opposite: bool) -> Evidence:
+        correspondences = {}
+        if result.correspondences is not None:
+            correspondences = {int(c): corr for c, corr in zip(result.candidates, result.correspondences)}
+            if index not in correspondences and self.matcher.last_evidence is not None:
+                # The sequence answer was not among the verified candidates: verify it too, to draw it.
+                distance = float(result.distances[0]) if len(result.distances) else 1.0
+                extra = verify(self.matcher.last_evidence, self.map.evidence([index]), np.array([distance]),
+                               opposite=opposite, scoring=self.config.verify.scoring,
+                               density=self.config.verify.density_filter)
+                correspondences[index] = extra.correspondences(0)
+        return Evidence(query_labels=result.query_labels, correspondences=correspondences,
+                        grid=getattr(self.map, "grid", None))
 
     def _position(self, index: int) -> tuple[float, float] | None:
         if self.map.positions is None:
@@ -75,3 +186,6 @@ def _candidates(result: MatchResult) -> list[Candidate]:
         Candidate(int(c), float(d), float(s), int(n[i]) if n is not None else 0)
         for i, (c, d, s) in enumerate(zip(result.candidates, result.distances, result.scores))
     ]
+
+
+__all__ = ["Localizer", "SequenceResult"]

@@ -14,6 +14,7 @@ from .describe import LostDescriber, TrailingMeans
 from .errors import MapError
 from .frame import Frame
 from .images import check_frame
+from .keypoints import KeypointEvidence
 from .lost import RunningStandardiser
 from .refmap import ReferenceMap
 from .search import cosine_distances, sad_distances, top_k
@@ -43,6 +44,10 @@ class MatchResult:
     """(h, w) grouped semantic labels of the query."""
     timings: dict[str, float] = field(default_factory=dict)
     """Seconds per stage: network, descriptor, search, verify."""
+    map_scores: np.ndarray | None = None
+    """(N,) the single-frame score of every reference frame, for the sequence filter: the descriptor
+    distance for thumbnails; for LoST-X the verification score of the verified candidates and, elsewhere,
+    the descriptor distance times the candidates' median ratio of score to distance."""
 
     @property
     def best(self) -> int:
@@ -100,7 +105,11 @@ class PlaceMatcher:
             settings = refmap.manifest.get("thumbnail", {})
             self.describer = ThumbnailDescriber(tuple(settings.get("size", (64, 32))), settings.get("patch", 8))
 
+        self.last_evidence: KeypointEvidence | None = None
+        """The latest LoST query's keypoint evidence (to verify further candidates against)."""
+
     def reset(self) -> None:
+        self.last_evidence = None
         if isinstance(self.describer, LostDescriber):
             self.normaliser.reset()
             self.means.reset()
@@ -125,6 +134,7 @@ class PlaceMatcher:
             scores=ranked,
             confidence=uniqueness(order, ranked, self.config.verify.uniqueness_exclusion),
             timings={"network": 0.0, "descriptor": t1 - t0, "search": t2 - t1, "verify": 0.0},
+            map_scores=distances,
         )
 
     def _match_lost(self, image: np.ndarray, opposite: bool) -> MatchResult:
@@ -135,6 +145,7 @@ class PlaceMatcher:
         semantic = describer.backbone(image)
         t1 = time.perf_counter()
         frame = describer.from_semantic(semantic)
+        self.last_evidence = frame.evidence
         descriptor = self.normaliser(describer.descriptor(frame, self.means(frame)))
         t2 = time.perf_counter()
         distances = cosine_distances(descriptor, self.map.descriptors)
@@ -160,7 +171,30 @@ class PlaceMatcher:
             correspondences=[result.correspondences(int(c)) for c in rank],
             query_labels=frame.labels,
             timings={"network": t1 - t0, "descriptor": t2 - t1, "search": t3 - t2, "verify": t4 - t3},
+            map_scores=map_scores(distances, shortlist, result.scores, cfg.scoring),
         )
+
+
+def map_scores(distances: np.ndarray, shortlist: np.ndarray, verified: np.ndarray, scoring: str) -> np.ndarray:
+    """Extend the verified scores of the shortlist to every reference frame.
+
+    Verification scores exist for the top k only. Elsewhere the score is imputed
+    from the descriptor distance: the verified scores are the distance times a
+    verification factor (Eq. 4 family), and an unverified frame gets the
+    shortlist's median factor (for plain Eq. 4, whose score ignores the distance,
+    the shortlist's median score). A candidate without usable correspondences
+    gets the imputed score too.
+    """
+    finite = np.isfinite(verified)
+    if scoring == "eq4":
+        fill = float(np.median(verified[finite])) if finite.any() else 1.0
+        scores = np.full(len(distances), fill)
+    else:
+        d = np.maximum(distances[shortlist], 1e-12)
+        factor = float(np.median(verified[finite] / d[finite])) if finite.any() else 1.0
+        scores = distances.astype(np.float64) * factor
+    scores[shortlist[finite]] = verified[finite]
+    return scores
 
 
 def _with_classes(config, classes: dict) -> "object":

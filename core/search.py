@@ -22,6 +22,12 @@ def cosine_distances(query: np.ndarray, refs: np.ndarray) -> np.ndarray:
     return 1.0 - refs @ query
 
 
-def sad_distances(query: np.ndarray, refs: np.ndarray) -> np.ndarray:
-    """Mean absolute difference (SeqSLAM's sum of absolute differences per pixel) of (K,) to (N, K)."""
-    return np.abs(refs - query).mean(axis=1)
+def sad_distances(query: np.ndarray, refs: np.ndarray, chunk: int = 4096) -> np.ndarray:
+    """Mean absolute difference (SeqSLAM's sum of absolute differences, per pixel) of int8 thumbnails:
+    query (K,) against refs (N, K), in chunks so the temporary stays small for large maps."""
+    q = query.astype(np.int16)
+    out = np.empty(len(refs), dtype=np.float32)
+    for start in range(0, len(refs), chunk):
+        block = refs[start : start + chunk].astype(np.int16)
+        out[start : start + chunk] = np.abs(block - q).sum(axis=1) / refs.shape[1]
+    return out

