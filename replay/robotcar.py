@@ -188,7 +188,9 @@ def robotcar_traverse(
         if not stem.isdigit():
             raise InputError(f"{p}: RobotCar images are named by their microsecond timestamp, got {p.name}")
     notes: list[str] = []
-    stamps_path = root / stamps_name
+    # Usually at the traverse root; some extractions leave it beside the camera folder (stereo/stereo.timestamps).
+    stamps_path = next((p for p in (root / stamps_name, image_dir.parent / stamps_name) if p.is_file()),
+                       root / stamps_name)
     if stamps_path.is_file():
         listed = read_timestamps(stamps_path)
         listed_names = {str(t) for t in listed}

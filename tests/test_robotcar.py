@@ -97,6 +97,15 @@ def test_positions_interpolated_at_image_times(traverse_dir):
     assert any("1 of 4 timestamps" in n for n in front.notes)  # the listed frame without an image
 
 
+def test_timestamps_file_beside_the_camera_folder(traverse_dir):
+    (traverse_dir / "stereo.timestamps").rename(traverse_dir / "stereo" / "stereo.timestamps")
+    front = robotcar_traverse(traverse_dir, "front")
+    assert len(front) == 3 and not any("no stereo.timestamps" in n for n in front.notes)
+    (traverse_dir / "stereo" / "stereo.timestamps").unlink()
+    front = robotcar_traverse(traverse_dir, "front")  # falls back to the file names
+    assert len(front) == 3 and any("no stereo.timestamps" in n for n in front.notes)
+
+
 def test_images_outside_the_ins_time_span_are_dropped_and_noted(traverse_dir):
     rear = robotcar_traverse(traverse_dir, "rear")  # 0.12 s is inside; 0.9 s is inside too (INS to 1.0 s)
     assert len(rear) == 2
