@@ -1,30 +1,54 @@
-"""A traverse stored as a folder of images in name order, with an optional positions CSV."""
+"""A traverse: frames of one recorded drive, read from disk lazily; and the plain folder-of-images reader."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Iterator
+from typing import Callable, Iterator, Sequence
 
 import numpy as np
 
+from lostx.core.errors import InputError
 from lostx.core.frame import Camera, Frame
 from lostx.core.images import list_images, read_image
 
 from .positions import align_positions, read_positions
 
+ImageLoader = Callable[[Path], np.ndarray]
+
 
 @dataclass
 class Traverse:
-    """Frames of one recorded traverse, read from disk lazily, in order."""
+    """Frames of one recorded traverse, read from disk lazily, in order.
+
+    Every dataset reader returns these, so everything downstream (maps, matching,
+    evaluation, replay) sees one shape whatever the format on disk.
+    """
 
     name: str
     files: list[Path]
     positions: np.ndarray | None = None
+    """(N, 2) metres (x east, y north) or None. Derived from ``geo`` when that is set."""
     timestamps: np.ndarray | None = None
+    """(N,) seconds, or None."""
     camera: Camera = "front"
     mirror: bool = False
     """Flip every image left-right (a test of the flip handling, not an opposite view)."""
+    loader: ImageLoader | None = None
+    """Reads one file as RGB uint8 (e.g. demosaicing raw Bayer); ``read_image`` when None."""
+    geo: np.ndarray | None = None
+    """(N, 2) latitude, longitude in degrees when the positions came from them. Two traverses'
+    local metres are only comparable after projecting both about one origin (``replay.dataset``)."""
+    notes: list[str] = field(default_factory=list)
+    """What the reader did that a user should know (frames skipped, fallbacks taken)."""
+    source_indices: np.ndarray | None = None
+    """(N,) index of each frame in the traverse as read, when this is a subset (subsampling)."""
+
+    def __post_init__(self) -> None:
+        n = len(self.files)
+        for label, array in (("positions", self.positions), ("timestamps", self.timestamps), ("geo", self.geo)):
+            if array is not None and len(array) != n:
+                raise InputError(f"{self.name}: {len(array)} {label} for {n} images")
 
     def __len__(self) -> int:
         return len(self.files)
@@ -33,14 +57,17 @@ class Traverse:
     def root(self) -> Path:
         return self.files[0].parent
 
-    def frame(self, index: int) -> Frame:
-        image = read_image(self.files[index])
+    def image(self, index: int) -> np.ndarray:
+        image = (self.loader or read_image)(self.files[index])
         if self.mirror:
             image = np.ascontiguousarray(image[:, ::-1])
+        return image
+
+    def frame(self, index: int) -> Frame:
         position = tuple(float(v) for v in self.positions[index]) if self.positions is not None else None
         return Frame(
             id=index,
-            image=image,
+            image=self.image(index),
             timestamp=float(self.timestamps[index]) if self.timestamps is not None else None,
             camera=self.camera,
             position=position,  # type: ignore[arg-type]
@@ -51,12 +78,32 @@ class Traverse:
         for index in range(len(self.files)):
             yield self.frame(index)
 
+    def subset(self, indices: Sequence[int] | np.ndarray, note: str | None = None) -> "Traverse":
+        """The frames at ``indices`` (in that order), remembering where each came from."""
+        idx = np.asarray(indices, dtype=np.int64)
+        if idx.ndim != 1 or (len(idx) and (idx.min() < 0 or idx.max() >= len(self))):
+            raise InputError(f"{self.name}: frame indices out of range 0..{len(self) - 1}")
+        if len(idx) == 0:
+            raise InputError(f"{self.name}: a subset needs at least one frame")
+        original = self.source_indices[idx] if self.source_indices is not None else idx
+        return replace(
+            self,
+            files=[self.files[i] for i in idx],
+            positions=self.positions[idx] if self.positions is not None else None,
+            timestamps=self.timestamps[idx] if self.timestamps is not None else None,
+            geo=self.geo[idx] if self.geo is not None else None,
+            notes=[*self.notes, *([note] if note else [])],
+            source_indices=original,
+        )
+
 
 def folder_traverse(
     images: str | Path, positions: str | Path | None = None, camera: Camera = "front", mirror: bool = False
 ) -> Traverse:
+    """A folder of images in name order, with an optional positions CSV (see ``replay.positions``)."""
     files = list_images(images)
-    coords = stamps = None
+    coords = stamps = geo = None
     if positions is not None:
-        coords, stamps = align_positions(read_positions(positions), [f.name for f in files], Path(positions))
-    return Traverse(Path(images).name, files, coords, stamps, camera, mirror)
+        table = read_positions(positions)
+        coords, stamps, geo = align_positions(table, [f.name for f in files], Path(positions))
+    return Traverse(Path(images).name, files, coords, stamps, camera, mirror, geo=geo)

@@ -35,6 +35,8 @@ class PositionTable:
     files: list[str] | None  # file name per row, if the CSV names them
     geographic: bool  # read from lat/lon
     origin: tuple[float, float] | None = None  # (lat, lon) of the projection origin
+    geo: np.ndarray | None = None  # (N, 2) the latitudes and longitudes as read, when geographic
+    lines: list[int] | None = None  # the CSV line number of each row, for messages
 
 
 def latlon_to_local(lat: np.ndarray, lon: np.ndarray, origin: tuple[float, float]) -> np.ndarray:
@@ -48,7 +50,7 @@ def latlon_to_local(lat: np.ndarray, lon: np.ndarray, origin: tuple[float, float
 def read_positions(path: str | Path) -> PositionTable:
     path = Path(path)
     try:
-        text = path.read_text()
+        text = path.read_text(encoding="utf-8-sig")  # a spreadsheet's byte-order mark is not part of the header
     except FileNotFoundError:
         raise InputError(f"positions file not found: {path}") from None
     except UnicodeDecodeError:
@@ -72,7 +74,7 @@ def read_positions(path: str | Path) -> PositionTable:
             f"{path}:1: header {rows[0]} has no position columns; expected x,y (metres) or lat,lon (degrees)"
         )
     file_col, time_col = find(_FILE), find(_TIME)
-    values, stamps, files = [], [], []
+    values, stamps, files, lines = [], [], [], []
     for line, row in enumerate(rows[1:], start=2):
         if not row or all(not cell.strip() for cell in row):
             continue
@@ -90,13 +92,18 @@ def read_positions(path: str | Path) -> PositionTable:
             raise InputError(f"{path}:{line}: latitude/longitude out of range: {a}, {b}")
         values.append((a, b))
         stamps.append(t)
+        lines.append(line)
         if file_col is not None:
-            files.append(row[file_col].strip())
+            name = row[file_col].strip()
+            if not name:
+                raise InputError(f"{path}:{line}: empty file name in column '{header[file_col]}'")
+            files.append(Path(name).name)  # a path in the CSV matches the image by its name
     if not values:
         raise InputError(f"{path}: no position rows after the header")
     coords = np.asarray(values, dtype=np.float64)
-    origin = None
+    origin = geo = None
     if geographic:
+        geo = coords
         origin = (float(coords[0, 0]), float(coords[0, 1]))
         coords = latlon_to_local(coords[:, 0], coords[:, 1], origin)
     return PositionTable(
@@ -105,26 +112,33 @@ def read_positions(path: str | Path) -> PositionTable:
         files=files if file_col is not None else None,
         geographic=geographic,
         origin=origin,
+        geo=geo,
+        lines=lines,
     )
 
 
-def align_positions(table: PositionTable, names: list[str], source: Path) -> tuple[np.ndarray, np.ndarray | None]:
-    """Positions (and timestamps) in the order of the image ``names``."""
+def align_positions(
+    table: PositionTable, names: list[str], source: Path
+) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """Positions, timestamps (or None) and latitude/longitude (or None) in the order of the image ``names``."""
     if table.files is None:
         if len(table.positions) != len(names):
             raise InputError(
                 f"{source}: {len(table.positions)} position rows for {len(names)} images; "
                 f"add a 'file' column or give one row per image in name order"
             )
-        return table.positions, table.timestamps
-    index = {}
+        return table.positions, table.timestamps, table.geo
+    index: dict[str, int] = {}
     for row, name in enumerate(table.files):
         if name in index:
-            raise InputError(f"{source}:{row + 2}: file {name} is listed twice")
+            line = table.lines[row] if table.lines else row + 2
+            first = table.lines[index[name]] if table.lines else index[name] + 2
+            raise InputError(f"{source}:{line}: file {name} is listed twice (first on line {first})")
         index[name] = row
     missing = [n for n in names if n not in index]
     if missing:
         raise InputError(f"{source}: no position for {len(missing)} image(s), e.g. {', '.join(missing[:3])}")
     order = np.asarray([index[n] for n in names])
     stamps = table.timestamps[order] if table.timestamps is not None else None
-    return table.positions[order], stamps
+    geo = table.geo[order] if table.geo is not None else None
+    return table.positions[order], stamps, geo
