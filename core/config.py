@@ -81,21 +81,30 @@ class SequenceConfig:
 
     enabled: bool = True
     """Answer with the sequence filter (``False``: single-frame answers)."""
-    length: int = 10
+    length: int = 20
     """L: frames in the rolling window."""
-    speeds: tuple[float, ...] = (0.0, 0.5, 0.8, 0.9, 1.0, 1.1, 1.2, 1.5, 2.0)
-    """Trajectory slopes searched, in reference frames per query frame (0 = stopped)."""
+    speeds: tuple[float, ...] = (0.0, 0.25, 0.5, 0.75, 0.8, 0.9, 1.0, 1.1, 1.2, 1.25, 1.5, 1.75, 2.0)
+    """Every trajectory slope the search may use, in reference frames per query frame (0 = stopped).
+    With a track, the tracker picks those within its plausible band."""
+    acquire_speeds: tuple[float, ...] = (0.8, 0.9, 1.0, 1.1, 1.2)
+    """Slopes searched without a track (OpenSeqSLAM's range): a stopped or slow vehicle is only
+    plausible once the tracker has seen it slow down."""
     anchors: int = 20
     """Trajectories are anchored at each frame's verified candidates and its this many lowest-cost references."""
     radius: int = 0
     """A trajectory takes a frame's lowest cost within this many reference frames of its line."""
     contrast_window: int = 10
     """References around each one that its cost is normalised against (SeqSLAM's contrast enhancement)."""
+    reference_prior: float = 100.0
+    """Weight, in frames, of the prior in each reference's running cost statistics (hub suppression)."""
     penalty: float = 0.0
     """Cost of a trajectory point off the map, or of a frame without costs (0 = an average reference)."""
     exclusion: int = 5
     """Confidence compares the best trajectory with the best one ending more than this many
     reference frames away."""
+    min_confidence: float = 0.5
+    """An answer this confident or more is ``localized`` (0.5: the best trajectory beats every
+    trajectory elsewhere by ln 2 = 0.69 standard deviations of the frame costs)."""
 
 
 @dataclass(frozen=True)
@@ -106,11 +115,15 @@ class TrackerConfig:
     gate_sigma: float = 4.0
     """Answers further than this many innovation standard deviations from the prediction are implausible."""
     relocalise_after: int = 3
-    """Consecutive implausible but mutually consistent answers that restart the track (a genuine jump)."""
+    """Consecutive implausible, confident and mutually consistent answers that restart the track
+    (a genuine jump: a kidnapped vehicle, a gap in the map)."""
+    lost_after: int = 10
+    """Consecutive implausible answers after which the track is dropped and must be acquired again."""
     position_sigma: float = 2.0
     """Measurement noise of a sequence answer, in reference frames."""
-    speed_sigma: float = 0.5
-    """Initial uncertainty of the speed, in reference frames per frame."""
+    speed_sigma: float = 0.1
+    """Initial uncertainty of the speed, in reference frames per frame (a wide initial speed band
+    lets slow trajectories on look-alike references in right after a track starts)."""
     acceleration_sigma: float = 0.05
     """Process noise: how fast the speed may change, per frame."""
 

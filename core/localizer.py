@@ -18,8 +18,14 @@ Confidence, in [0, 1], higher is surer:
   contrast-normalised costs (standard deviations); 0 when there is no margin;
 - single-frame (``sequence.enabled = False``): the verified uniqueness
   1 - s_best / s_alt of :func:`lostx.core.matcher.uniqueness`;
-- always 0 when the state is ``not_localized``: while the window warms up
-  (fewer than L frames seen) and when the tracker finds the answer implausible.
+- always 0 when the state is ``not_localized``.
+
+State, with the sequence filter: ``localized`` when the window is full and the
+answer is confident (confidence >= ``sequence.min_confidence``) and, with the
+tracker, plausible (it agrees with the track's prediction); ``not_localized``
+while warming up (fewer than L frames seen), when the evidence is weak, and
+when the tracker finds the answer implausible (then the answer is the track's
+prediction).
 
 Bad input (a frame that is not an H x W x 3 uint8 image, non-finite network
 output, a timestamp earlier than the previous frame's) raises a
@@ -42,7 +48,7 @@ from .images import check_frame
 from .matcher import MatchResult, PlaceMatcher
 from .refmap import ReferenceMap
 from .search import top_k
-from .sequence import SequenceFilter, SequenceResult, contrast_normalise
+from .sequence import ReferenceNormaliser, SequenceFilter, SequenceResult, contrast_normalise
 from .tracker import RouteTracker
 from .verify import verify
 
@@ -58,6 +64,7 @@ class Localizer:
         self.matcher = PlaceMatcher(refmap, self.config, backbone)
         seq = self.config.sequence
         self.sequence = SequenceFilter(seq.length, seq.speeds, seq.radius, seq.penalty)
+        self.hubs = ReferenceNormaliser(seq.reference_prior)
         self.tracker = RouteTracker(self.config.tracker)
         self._last_timestamp: float | None = None
 
@@ -65,6 +72,7 @@ class Localizer:
         """Forget everything seen so far (start of a new traverse)."""
         self.matcher.reset()
         self.sequence.reset()
+        self.hubs.reset()
         self.tracker.reset()
         self._last_timestamp = None
 
@@ -99,7 +107,7 @@ class Localizer:
     def _sequence_estimate(self, frame: Frame, result: MatchResult, opposite: bool, latency: dict) -> Estimate:
         cfg = self.config.sequence
         t0 = time.perf_counter()
-        costs = contrast_normalise(result.map_scores, cfg.contrast_window)
+        costs = self.hubs(contrast_normalise(result.map_scores, cfg.contrast_window))
         anchors = np.union1d(result.candidates, top_k(costs, cfg.anchors))
         speeds = self._plausible_speeds()
         seq = self.sequence.update(anchors, costs, speeds)
@@ -108,14 +116,14 @@ class Localizer:
         confidence = float(1.0 - np.exp(-margin))
         t1 = time.perf_counter()
         warming = seq.frames < cfg.length
-        position, speed, state = seq.position, seq.speed, "localized"
-        if warming:
-            state = "not_localized"
-        elif self.config.tracker.enabled:
-            track = self.tracker.step(seq.position, seq.speed)
-            position, speed = track.position, track.speed
+        confident = confidence >= cfg.min_confidence
+        position, speed, trusted = seq.position, seq.speed, confident
+        if not warming and self.config.tracker.enabled:
+            track = self.tracker.step(seq.position, seq.speed, confident)
+            trusted = confident and track.accepted
             if not track.accepted:
-                state = "not_localized"
+                position, speed = track.position, track.speed
+        state = "localized" if trusted and not warming else "not_localized"
         t2 = time.perf_counter()
         latency["sequence"] = 1e3 * (t1 - t0)
         latency["tracker"] = 1e3 * (t2 - t1)
@@ -132,13 +140,13 @@ class Localizer:
             estimate.evidence.sequence_candidates = refs
         return estimate
 
-    def _plausible_speeds(self) -> np.ndarray | None:
-        if not self.config.tracker.enabled:
-            return None
-        band = self.tracker.speed_range()
+    def _plausible_speeds(self) -> np.ndarray:
+        """Speeds of the trajectories the new frame spawns: the tracker's band, or the acquisition range."""
+        cfg = self.config.sequence
+        band = self.tracker.speed_range() if self.config.tracker.enabled else None
         if band is None:
-            return None
-        speeds = np.asarray(self.config.sequence.speeds)
+            return np.asarray(cfg.acquire_speeds, dtype=np.float64)
+        speeds = np.asarray(cfg.speeds, dtype=np.float64)
         inside = speeds[(speeds >= band[0]) & (speeds <= band[1])]
         return inside if len(inside) else speeds[[int(np.argmin(np.abs(speeds - sum(band) / 2)))]]
 

@@ -56,6 +56,40 @@ def contrast_normalise(scores: np.ndarray, window: int) -> np.ndarray:
     return out.astype(np.float32)
 
 
+class ReferenceNormaliser:
+    """Standardises each reference's cost against its own history over the queries seen so far.
+
+    A reference that is close to every query (a tunnel, a blank frame: a *hub*)
+    has a low contrast-normalised cost for every query, and a trajectory that
+    stays on it wins everywhere. Subtracting each reference's running mean cost
+    and dividing by its running standard deviation removes that, causally.
+    The running statistics start from mean 0 and standard deviation 1 (what
+    contrast normalisation gives on average) with a weight of ``prior`` frames.
+    """
+
+    def __init__(self, prior: float) -> None:
+        self.prior = float(prior)
+        self.reset()
+
+    def reset(self) -> None:
+        self._n = self.prior
+        self._sum: np.ndarray | None = None
+        self._sumsq: np.ndarray | None = None
+
+    def __call__(self, costs: np.ndarray) -> np.ndarray:
+        c = costs.astype(np.float64)
+        if self._sum is None or len(self._sum) != len(c):
+            self._n = self.prior
+            self._sum = np.zeros_like(c)
+            self._sumsq = np.full_like(c, self.prior)
+        self._n += 1.0
+        self._sum += c
+        self._sumsq += c * c
+        mean = self._sum / self._n
+        std = np.sqrt(np.maximum(self._sumsq / self._n - mean**2, 1e-6))
+        return ((c - mean) / std).astype(np.float32)
+
+
 @dataclass
 class SequenceResult:
     position: float
@@ -82,33 +116,34 @@ class SequenceFilter:
         self.reset()
 
     def reset(self) -> None:
-        self._frames: deque[tuple[int, np.ndarray, np.ndarray | None]] = deque()  # (t, anchors, costs)
         self._t = -1
+        self._times: deque[int] = deque()
+        self._ring: np.ndarray | None = None  # (length, N) costs of the window's frames; row = t % length
         # Live trajectories: anchor time, anchor reference, speed, and one cost per window column
         # (column i holds frame t - length + 1 + i).
         self._anchor_t = np.zeros(0, dtype=np.int64)
         self._anchor_r = np.zeros(0)
         self._speed = np.zeros(0)
         self._costs = np.zeros((0, self.length))
+        self._best_result: SequenceResult | None = None
 
     @property
     def frames(self) -> int:
-        return len(self._frames)
+        return len(self._times)
 
-    def frame_cost(self, costs: np.ndarray | None, where: np.ndarray) -> np.ndarray:
-        """cost_t at positions ``where``: the lowest cost within ``radius``; the penalty off the map or without costs."""
-        out = np.full(where.shape, self.penalty, dtype=np.float64)
-        if costs is None or len(costs) == 0:
-            return out
+    def _lookup(self, times: np.ndarray, where: np.ndarray) -> np.ndarray:
+        """cost_t at positions ``where`` of frames ``times`` (broadcast together): the lowest cost within
+        ``radius``; the penalty off the map or for a frame without costs."""
+        assert self._ring is not None
+        n = self._ring.shape[1]
+        rows = np.broadcast_to(times % self.length, where.shape)
         nearest = np.rint(where).astype(np.int64)
-        on_map = (nearest >= 0) & (nearest < len(costs))
         best = np.full(where.shape, np.inf)
         for offset in range(-self.radius, self.radius + 1):
-            idx = np.clip(nearest + offset, 0, len(costs) - 1)
-            inside = on_map & (nearest + offset >= 0) & (nearest + offset < len(costs))
-            best = np.where(inside, np.minimum(best, costs[idx]), best)
-        out[on_map] = best[on_map]
-        return out
+            cells = nearest + offset
+            inside = (cells >= 0) & (cells < n)
+            best = np.where(inside, np.fmin(best, self._ring[rows, np.clip(cells, 0, n - 1)]), best)
+        return np.where(np.isfinite(best), best, self.penalty)
 
     def update(self, anchors: np.ndarray, costs: np.ndarray | None, speeds: np.ndarray | None = None) -> SequenceResult:
         """Add the newest frame: its anchor references and its cost for every reference (or None).
@@ -118,35 +153,44 @@ class SequenceFilter:
         """
         self._t += 1
         t = self._t
+        if costs is not None and self._ring is None:
+            self._ring = np.full((self.length, len(costs)), np.nan, dtype=np.float32)
+        if self._ring is not None:
+            self._ring[t % self.length] = np.nan if costs is None else costs
         anchors = np.unique(np.asarray(anchors, dtype=np.float64)) if costs is not None else np.zeros(0)
-        self._frames.append((t, anchors, costs))
-        if len(self._frames) > self.length:
-            self._frames.popleft()
-        oldest = self._frames[0][0]
+        self._times.append(t)
+        if len(self._times) > self.length:
+            self._times.popleft()
+        oldest = self._times[0]
 
         # Slide the window: drop trajectories anchored before it, shift the cost columns left.
         live = self._anchor_t >= oldest
         self._anchor_t, self._anchor_r, self._speed = self._anchor_t[live], self._anchor_r[live], self._speed[live]
         self._costs = np.concatenate([self._costs[live, 1:], np.full((int(live.sum()), 1), np.nan)], axis=1)
-        # The newest frame's cost on every live trajectory.
-        self._costs[:, -1] = self.frame_cost(costs, self._anchor_r + self._speed * (t - self._anchor_t))
+        if self._ring is not None and len(self._anchor_t):
+            # The newest frame's cost on every live trajectory.
+            self._costs[:, -1] = self._lookup(np.array(t), self._anchor_r + self._speed * (t - self._anchor_t))
 
         # Spawn the trajectories anchored at the newest frame, with their costs over the window.
         spawn = self.speeds if speeds is None or len(speeds) == 0 else np.asarray(speeds, dtype=np.float64)
         new_r = np.repeat(anchors, len(spawn))
         new_v = np.tile(spawn, len(anchors))
         new_costs = np.full((len(new_r), self.length), np.nan)
-        for ft, _, fcosts in self._frames:
-            new_costs[:, self.length - 1 - (t - ft)] = self.frame_cost(fcosts, new_r + new_v * (ft - t))
+        if len(new_r):
+            times = np.asarray(self._times)
+            new_costs[:, self.length - len(times) :] = self._lookup(
+                times[None, :], new_r[:, None] + new_v[:, None] * (times[None, :] - t)
+            )
         self._anchor_t = np.concatenate([self._anchor_t, np.full(len(new_r), t)])
         self._anchor_r = np.concatenate([self._anchor_r, new_r])
         self._speed = np.concatenate([self._speed, new_v])
         self._costs = np.concatenate([self._costs, new_costs])
-        return self._best()
+        self._best_result = self._best()
+        return self._best_result
 
     def scores(self) -> np.ndarray:
         """Mean cost of every live trajectory over the frames in the window."""
-        window = self._costs[:, self.length - len(self._frames) :]
+        window = self._costs[:, self.length - len(self._times) :]
         return window.sum(axis=1) / window.shape[1]
 
     def positions(self) -> np.ndarray:
@@ -155,17 +199,18 @@ class SequenceFilter:
 
     def _best(self) -> SequenceResult:
         scores = self.scores()
-        ends = self.positions()
         if len(scores) == 0:
-            return SequenceResult(np.nan, np.nan, np.inf, len(self._frames), np.zeros(0))
+            return SequenceResult(np.nan, np.nan, np.inf, len(self._times), np.full(len(self._times), np.nan))
+        ends = self.positions()
         # Lowest score; ties go to the slower trajectory, then the lower position, then the newer anchor.
-        best = np.lexsort((-self._anchor_t, ends, self._speed, scores))[0]
-        times = np.array([ft for ft, _, _ in self._frames])
+        tied = np.flatnonzero(scores == scores.min())
+        best = tied[np.lexsort((-self._anchor_t[tied], ends[tied], self._speed[tied]))[0]]
+        times = np.asarray(self._times)
         return SequenceResult(
             position=float(ends[best]),
             speed=float(self._speed[best]),
             score=float(scores[best]),
-            frames=len(self._frames),
+            frames=len(self._times),
             trajectory=self._anchor_r[best] + self._speed[best] * (times - self._anchor_t[best]),
         )
 
@@ -175,17 +220,19 @@ class SequenceFilter:
         return float(self.scores()[far].min()) if far.any() else np.inf
 
     def window(self, width: int) -> tuple[np.ndarray, np.ndarray]:
-        """(frames, 2 * width + 1) costs around the best trajectory of each window frame, oldest first,
+        """(frames, 2 * width + 1) costs around the best trajectory at each window frame, oldest first,
         and the reference index of each cell (-1 off the map): the picture of the sequence search."""
-        best = self._best()
-        costs = np.full((len(self._frames), 2 * width + 1), np.nan, dtype=np.float32)
+        frames = len(self._times)
+        costs = np.full((frames, 2 * width + 1), np.nan, dtype=np.float32)
         refs = np.full(costs.shape, -1, dtype=np.int64)
-        for i, (_, _, fcosts) in enumerate(self._frames):
-            if fcosts is None or not np.isfinite(best.trajectory[i]):
-                continue
-            centre = int(np.rint(best.trajectory[i]))
-            cells = np.arange(centre - width, centre + width + 1)
-            ok = (cells >= 0) & (cells < len(fcosts))
-            costs[i, ok] = fcosts[cells[ok]]
-            refs[i, ok] = cells[ok]
+        best = self._best_result
+        if best is None or self._ring is None or not np.isfinite(best.trajectory).all():
+            return costs, refs
+        n = self._ring.shape[1]
+        times = np.asarray(self._times)
+        cells = np.rint(best.trajectory).astype(np.int64)[:, None] + np.arange(-width, width + 1)[None, :]
+        inside = (cells >= 0) & (cells < n)
+        values = self._ring[np.broadcast_to((times % self.length)[:, None], cells.shape), np.clip(cells, 0, n - 1)]
+        costs[inside] = values[inside]
+        refs[inside] = cells[inside]
         return costs, refs

@@ -8,12 +8,15 @@ that exactly, costs O(1) per frame whatever the map size, and gives the
 innovation's standard deviation that the gate needs. A Bayes filter over N
 places would cost O(N) per frame and repeat what the sequence search does.
 
-The filter gates the sequence answers: one further than ``gate_sigma``
-standard deviations from the prediction is an implausible jump and is not
-trusted (the frame is reported ``not_localized``). If the rejected answers
-keep agreeing with one another for ``relocalise_after`` frames, the vehicle
-really did jump (a kidnapped robot, a gap in the map): the filter restarts
-there.
+A track starts from a confident answer. The filter then gates the sequence
+answers: one within ``gate_sigma`` standard deviations of the prediction is
+accepted; one further away is an implausible jump and is not trusted. (Also
+trusting weak answers that agree with the track raised recall on Nordland but
+let wrong answers through where the route leaves the map, so agreement only
+ever removes trust.) If confident rejected answers keep
+agreeing with one another for ``relocalise_after`` frames, the vehicle really
+did jump (a kidnapped robot, a gap in the map) and the track restarts there;
+after ``lost_after`` rejections in a row the track is dropped.
 """
 
 from __future__ import annotations
@@ -73,8 +76,11 @@ class RouteTracker:
         v, sigma = float(self.kf.x[1, 0]), float(np.sqrt(self.kf.P[1, 1]))
         return v - 3.0 * sigma, v + 3.0 * sigma
 
-    def step(self, position: float, speed: float) -> TrackStep:
+    def step(self, position: float, speed: float, confident: bool) -> TrackStep:
+        """Feed one sequence answer; ``confident``: its margin reaches the localized threshold."""
         if self.kf is None:
+            if not confident:
+                return TrackStep(False, position, speed)
             self._start(position, speed)
             return TrackStep(True, position, speed, relocalised=True)
         kf = self.kf
@@ -87,10 +93,15 @@ class RouteTracker:
             self._rejected.clear()
             return TrackStep(True, float(kf.x[0, 0]), float(kf.x[1, 0]))
         self.misses += 1
-        self._rejected.append((position, speed))
+        if confident:
+            self._rejected.append((position, speed))
+        else:
+            self._rejected.clear()
         if self._consistent():
             self._start(position, speed)
             return TrackStep(True, position, speed, relocalised=True)
+        if self.misses >= self.config.lost_after:
+            self.reset()
         return TrackStep(False, predicted, float(kf.x[1, 0]))
 
     def _consistent(self) -> bool:
