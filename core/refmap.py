@@ -4,7 +4,7 @@ A map is a folder::
 
     manifest.json           format, version, backbone, classes, settings, frames,
                             and every array's dtype, shape, size and sha256
-    descriptors.npy         (N, K) float16 normalised LoST descriptors, or int8 thumbnails
+    descriptors.npy         (N, K) float16 normalised LoST descriptors, or uint8 thumbnails
     stats_mean.npy          (K,) float32  } per-dimension statistics of the raw
     stats_std.npy           (K,) float32  } descriptors, for normalising queries
     keypoints.npy           (N, D) int16   arg-max location per channel, -1 = none
@@ -149,7 +149,7 @@ class MapWriter:
             arrays["stats_std"] = stats.std
             arrays.update(_pack_evidence([f.evidence for f in self.frames], self.backbone))  # type: ignore[misc]
         else:
-            arrays["descriptors"] = np.stack([f.descriptor for f in self.frames]).astype(np.int8)
+            arrays["descriptors"] = np.stack([f.descriptor for f in self.frames]).astype(np.uint8)
         positions = [f.position for f in self.frames]
         if any(p is not None for p in positions):
             if any(p is None for p in positions):
@@ -242,7 +242,7 @@ class ReferenceMap:
         self._arrays = arrays
         self.kind: MapKind = manifest["kind"]
         self.names: list[str] = list(manifest["frames"])
-        self.descriptors = np.asarray(arrays["descriptors"], dtype=np.float32 if self.kind == "lost" else np.int8)
+        self.descriptors = np.asarray(arrays["descriptors"], dtype=np.float32 if self.kind == "lost" else np.uint8)
         self.positions: np.ndarray | None = arrays.get("positions")
         self.timestamps: np.ndarray | None = arrays.get("timestamps")
         self.backbone: dict[str, Any] | None = manifest.get("backbone")

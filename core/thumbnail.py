@@ -21,18 +21,23 @@ from .errors import InputError
 from .images import check_frame
 
 
+ZERO = 128
+"""Thumbnails are stored as uint8 with round(z) = 0 at 128, as SeqSLAM stores 127 + round(z)."""
+
+
 def patch_normalise(image: np.ndarray, patch: int) -> np.ndarray:
-    """round((p - mean) / std) per non-overlapping ``patch`` x ``patch`` block (sample std); flat blocks become 0."""
+    """128 + round((p - mean) / std) per non-overlapping ``patch`` x ``patch`` block (sample std);
+    flat blocks become 128."""
     h, w = image.shape
     blocks = image.reshape(h // patch, patch, w // patch, patch).astype(np.float32)
     mean = blocks.mean(axis=(1, 3), keepdims=True)
     std = blocks.std(axis=(1, 3), keepdims=True, ddof=1)
     z = np.where(std > 1e-6, (blocks - mean) / np.maximum(std, 1e-6), 0.0)
-    return np.clip(np.rint(z), -127, 127).reshape(h, w).astype(np.int8)
+    return (np.clip(np.rint(z), -ZERO, 255 - ZERO) + ZERO).reshape(h, w).astype(np.uint8)
 
 
 class ThumbnailDescriber:
-    """Frame -> (height * width,) int8 patch-normalised thumbnail."""
+    """Frame -> (height * width,) uint8 patch-normalised thumbnail."""
 
     metric = "sad"
 

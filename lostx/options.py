@@ -23,6 +23,8 @@ def add_config_options(parser: argparse.ArgumentParser) -> None:
     group = parser.add_argument_group("matching")
     group.add_argument("--scoring", choices=["eq4-lost", "eq4", "released"], help="verification score")
     group.add_argument("--top-k", type=int, help="candidates verified per query (default 10)")
+    group.add_argument("--window", type=int, help="frames in the sequence filter's window (default 20)")
+    group.add_argument("--no-tracker", action="store_true", help="answer without the route tracker")
 
 
 def config_from_args(args: argparse.Namespace) -> Config:
@@ -37,4 +39,9 @@ def config_from_args(args: argparse.Namespace) -> Config:
         verify = dataclasses.replace(verify, scoring=args.scoring)
     if getattr(args, "top_k", None):
         verify = dataclasses.replace(verify, top_k=args.top_k)
-    return dataclasses.replace(config, backbone=backbone, verify=verify)
+    sequence, tracker = config.sequence, config.tracker
+    if getattr(args, "window", None):
+        sequence = dataclasses.replace(sequence, length=args.window)
+    if getattr(args, "no_tracker", False):
+        tracker = dataclasses.replace(tracker, enabled=False)
+    return dataclasses.replace(config, backbone=backbone, verify=verify, sequence=sequence, tracker=tracker)

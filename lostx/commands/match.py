@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 import csv
-import sys
+import dataclasses
 import time
 from pathlib import Path
 
@@ -12,13 +12,15 @@ import numpy as np
 from tqdm import tqdm
 
 from lostx.core.errors import InputError
-from lostx.core.matcher import MatchResult, PlaceMatcher
+from lostx.core.estimate import Estimate
+from lostx.core.localizer import Localizer
 from lostx.core.refmap import ReferenceMap
 from lostx.options import add_config_options, config_from_args
 from lostx.replay.folder import folder_traverse
 
 COLUMNS = ["query_index", "query_file", "match_index", "match_file", "score", "confidence", "candidates",
            "distance", "correspondences"]
+SEQUENCE_COLUMNS = ["single_match_index", "state", "speed"]
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -27,6 +29,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("queries", type=Path, help="folder of query images, matched in name order")
     parser.add_argument("--out", type=Path, required=True, help="CSV file to write, one row per query")
     parser.add_argument("--opposite", action="store_true", help="the query camera faces opposite to the map's")
+    parser.add_argument("--sequence", action="store_true",
+                        help="answer with the online sequence filter and tracker (frames in name order)")
     parser.add_argument("--mirror", action="store_true",
                         help="flip the query images left-right first (tests the flip handling; not an opposite view)")
     parser.add_argument("--descriptor", choices=["lost", "thumbnail"],
@@ -38,35 +42,43 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     config = config_from_args(args)
+    config = dataclasses.replace(config, sequence=dataclasses.replace(config.sequence, enabled=args.sequence))
     refmap = ReferenceMap.open(args.map)
     if args.descriptor and args.descriptor != refmap.kind:
         raise InputError(f"{args.map} is a {refmap.kind} map, not {args.descriptor}")
-    queries = folder_traverse(args.queries, mirror=args.mirror)
-    matcher = PlaceMatcher(refmap, config)
+    camera = ("rear" if refmap.camera == "front" else "front") if args.opposite else refmap.camera
+    queries = folder_traverse(args.queries, camera=camera, mirror=args.mirror)
+    localizer = Localizer(refmap, config)
     start = time.perf_counter()
-    rows, results = [], []
+    rows, estimates = [], []
     for frame in tqdm(queries, total=len(queries), desc="matching", unit="frame", disable=args.quiet, leave=False):
-        result = matcher.match(frame.image, opposite=args.opposite)
-        results.append(result)
-        rows.append(csv_row(frame.id, frame.name, result, refmap))
+        estimate = localizer.step(frame)
+        estimates.append(estimate)
+        rows.append(csv_row(frame.name, estimate, refmap, args.sequence))
     elapsed = time.perf_counter() - start
-    write_csv(args.out, COLUMNS, rows)
-    print(summary_line(results, elapsed, args.out))
+    write_csv(args.out, COLUMNS + (SEQUENCE_COLUMNS if args.sequence else []), rows)
+    print(summary_line(estimates, elapsed, args.out))
     return 0
 
 
-def csv_row(index: int, name: str, result: MatchResult, refmap: ReferenceMap) -> dict[str, object]:
-    return {
-        "query_index": index,
+def csv_row(name: str, estimate: Estimate, refmap: ReferenceMap, sequence: bool) -> dict[str, object]:
+    single = estimate.candidates[0]
+    row: dict[str, object] = {
+        "query_index": estimate.frame_id,
         "query_file": name,
-        "match_index": result.best,
-        "match_file": refmap.names[result.best],
-        "score": f"{result.score:.6g}",
-        "confidence": f"{result.confidence:.4f}",
-        "candidates": " ".join(str(int(c)) for c in result.candidates),
-        "distance": f"{float(result.distances[0]):.6g}",
-        "correspondences": int(result.n_matches[0]) if result.n_matches is not None else "",
+        "match_index": estimate.match_index,
+        "match_file": refmap.names[estimate.match_index],
+        "score": f"{estimate.score:.6g}",
+        "confidence": f"{estimate.confidence:.4f}",
+        "candidates": " ".join(str(c.index) for c in estimate.candidates),
+        "distance": f"{single.distance:.6g}",
+        "correspondences": single.correspondences if refmap.kind == "lost" else "",
     }
+    if sequence:
+        row["single_match_index"] = estimate.single_match_index
+        row["state"] = estimate.state
+        row["speed"] = "" if estimate.speed is None else f"{estimate.speed:.3f}"
+    return row
 
 
 def write_csv(path: Path, columns: list[str], rows: list[dict[str, object]]) -> None:
@@ -79,10 +91,9 @@ def write_csv(path: Path, columns: list[str], rows: list[dict[str, object]]) -> 
     tmp.replace(path)
 
 
-def summary_line(results: list[MatchResult], elapsed: float, out: Path) -> str:
-    stages = {k: 1e3 * float(np.mean([r.timings.get(k, 0.0) for r in results])) for k in results[0].timings}
-    detail = ", ".join(f"{k} {v:.1f}" for k, v in stages.items())
-    return (f"matched {len(results)} queries in {elapsed:.1f} s ({1e3 * elapsed / len(results):.0f} ms per frame; "
-            f"{detail} ms); wrote {out}")
-
-
+def summary_line(estimates: list[Estimate], elapsed: float, out: Path) -> str:
+    stages = {k: float(np.mean([e.latency_ms.get(k, 0.0) for e in estimates])) for k in estimates[0].latency_ms}
+    detail = ", ".join(f"{k} {v:.1f}" for k, v in stages.items() if k != "total")
+    localized = sum(e.state == "localized" for e in estimates)
+    return (f"matched {len(estimates)} queries in {elapsed:.1f} s ({1e3 * elapsed / len(estimates):.0f} ms per frame; "
+            f"{detail} ms); {localized} localized; wrote {out}")

@@ -1,0 +1,140 @@
+"""The online sequence filter: exactly a batch computation of the same scores, causal, bounded per step."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from lostx.core.sequence import ReferenceNormaliser, SequenceFilter, contrast_normalise
+
+SPEEDS = (0.0, 0.5, 0.8, 1.0, 1.2, 2.0)
+
+
+def batch_answers(frames: list[tuple[np.ndarray, np.ndarray | None, np.ndarray]], length: int, radius: int,
+                  penalty: float) -> list[tuple[float, float, float]]:
+    """The straightforward computation: at every frame T, enumerate every trajectory through every anchor
+    of the window's frames (with the speeds that frame spawned), add up its costs frame by frame."""
+    answers = []
+    for t in range(len(frames)):
+        window = list(range(max(0, t - length + 1), t + 1))
+        best = None
+        for ta in window:
+            anchors, costs_a, speeds = frames[ta]
+            if costs_a is None:
+                continue
+            for ra in np.unique(anchors):
+                for v in speeds:
+                    total = 0.0
+                    for tt in window:
+                        costs = frames[tt][1]
+                        centre = int(np.rint(ra + v * (tt - ta)))
+                        if costs is None or not 0 <= centre < len(costs):
+                            total += penalty
+                            continue
+                        near = [costs[c] for c in range(centre - radius, centre + radius + 1) if 0 <= c < len(costs)]
+                        total += min(near)
+                    key = (total / len(window), v, ra + v * (t - ta), -ta)
+                    if best is None or key < best:
+                        best = key
+        answers.append((np.nan, np.nan, np.inf) if best is None else (best[2], best[1], best[0]))
+    return answers
+
+
+def synthetic_traverse(rng: np.random.Generator, n_frames: int, n_refs: int) -> list:
+    frames = []
+    for t in range(n_frames):
+        costs = rng.normal(size=n_refs).astype(np.float32)
+        true = 5 + t
+        costs[true] -= 2.5  # the true place stands out a little
+        anchors = np.argsort(costs)[:4]
+        speeds = np.array(SPEEDS) if t % 3 else np.array([0.8, 1.0])  # e.g. a tracker narrowing the band
+        frames.append((anchors, None if t == 7 else costs, speeds))  # frame 7: no costs (rejected input)
+    return frames
+
+
+@pytest.mark.parametrize("length, radius", [(5, 0), (8, 1), (1, 0)])
+def test_online_equals_batch_on_a_synthetic_traverse(rng, length, radius):
+    frames = synthetic_traverse(rng, 30, 60)
+    online = SequenceFilter(length, SPEEDS, radius, penalty=0.3)
+    got = [online.update(a, c, s) for a, c, s in frames]
+    want = batch_answers(frames, length, radius, 0.3)
+    for g, (position, speed, score) in zip(got, want):
+        np.testing.assert_equal((g.position, g.speed), (position, speed))
+        assert g.score == pytest.approx(score, rel=1e-6, abs=1e-6)
+    assert sum(np.isnan(g.position) for g in got) == (1 if length == 1 else 0)
+
+
+def test_online_equals_batch_on_real_nordland_candidates(nordland):
+    """Record what the localizer feeds the filter over 200 real frames, recompute in batch, compare."""
+    from lostx.core import Config, Localizer
+    from lostx.core.build import build_map
+    from lostx.core.frame import Frame
+    from lostx.core.refmap import ReferenceMap
+    from lostx.core.thumbnail import ThumbnailDescriber
+    from lostx.replay.folder import folder_traverse
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as tmp:
+        summer = folder_traverse(nordland / "summer")
+        build_map(summer.subset(range(300, 700)), f"{tmp}/map", describer=ThumbnailDescriber(), progress=False)
+        localizer = Localizer(ReferenceMap.open(f"{tmp}/map"), Config())
+        fed: list = []
+        original = localizer.sequence.update
+
+        def recording(anchors, costs, speeds=None):
+            fed.append((np.asarray(anchors).copy(), costs.copy(), np.asarray(speeds).copy()))
+            return original(anchors, costs, speeds)
+
+        localizer.sequence.update = recording
+        winter = folder_traverse(nordland / "winter")
+        online = [localizer.step(Frame(i, winter.frame(300 + i).image)) for i in range(200)]
+    cfg = Config().sequence
+    want = batch_answers(fed, cfg.length, cfg.radius, cfg.penalty)
+    tracked = [e for e in online if e.state == "localized"]
+    assert len(tracked) > 100  # the scene is recognised: the comparison covers real, varied answers
+    fresh = SequenceFilter(cfg.length, cfg.speeds, cfg.radius, cfg.penalty)
+    for (anchors, costs, speeds), (position, speed, score) in zip(fed, want):
+        got = fresh.update(anchors, costs, speeds)
+        assert (got.position, got.speed) == (position, speed)
+        assert got.score == pytest.approx(score, rel=1e-6, abs=1e-6)
+
+
+def test_live_trajectories_are_bounded_whatever_the_map_size(rng):
+    for n_refs in (100, 100_000):
+        seq = SequenceFilter(10, SPEEDS, 0, 0.0)
+        for _ in range(25):
+            seq.update(rng.integers(0, n_refs, 20), rng.normal(size=n_refs).astype(np.float32))
+        assert len(seq.scores()) <= 10 * 20 * len(SPEEDS)
+
+
+def test_warm_up_and_off_map_penalty():
+    seq = SequenceFilter(4, (1.0,), 0, penalty=5.0)
+    costs = np.zeros(3, dtype=np.float32)
+    costs[0] = -1.0
+    first = seq.update(np.array([0]), costs)
+    assert first.frames == 1 and first.score == pytest.approx(-1.0)
+    for _ in range(4):
+        result = seq.update(np.array([0]), costs)
+    # The newest trajectory through reference 0 runs off the map on the left for the older frames.
+    assert result.frames == 4
+    assert np.isfinite(result.score)
+    assert seq.update(np.array([2]), None).frames == 4  # a frame without costs: no crash, penalty only
+
+
+def test_contrast_normalisation_by_hand():
+    scores = np.array([1.0, 2.0, 3.0, 10.0, 3.0])
+    got = contrast_normalise(scores, window=2)  # neighbourhoods of 3 references
+    neighbourhood = np.array([2.0, 3.0, 10.0])
+    assert got[2] == pytest.approx((3.0 - neighbourhood.mean()) / neighbourhood.std(ddof=1), rel=1e-5)
+    assert got[0] == pytest.approx((1.0 - 1.5) / np.std([1.0, 2.0], ddof=1), rel=1e-5)
+    assert contrast_normalise(np.ones(6), 4).tolist() == [0.0] * 6  # flat: no contrast
+
+
+def test_reference_normaliser_removes_a_hub(rng):
+    hubs = ReferenceNormaliser(prior=5.0)
+    for _ in range(200):
+        costs = rng.normal(size=50)
+        costs[7] -= 3.0  # reference 7 looks like every query
+        out = hubs(costs)
+    assert abs(out[7]) < 3.0
+    assert abs(np.mean(out)) < 0.5
