@@ -13,7 +13,7 @@ import sys
 from lostx import __version__
 from lostx.core.errors import LostxError
 
-COMMANDS = ("demo", "map", "match", "backbones")
+COMMANDS = ("demo", "map", "match", "serve", "replay", "listen", "keys", "backbones")
 
 
 def build_parser() -> argparse.ArgumentParser:
