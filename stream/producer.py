@@ -9,8 +9,9 @@
 
 The publisher connects (the service binds), so it may start first and it keeps
 working across a service restart. In lossless mode it keeps every frame that is
-not yet acknowledged and sends them again to a restarted service (a new
-session), so nothing is lost; docs/protocol.md has the whole exchange.
+not yet answered and, after any reconnection (a restarted service, a dropped
+connection), sends them again in order, so nothing is lost; docs/protocol.md
+has the whole exchange.
 """
 
 from __future__ import annotations
