@@ -8,7 +8,7 @@ from pathlib import Path
 
 from lostx.core.errors import InputError
 from lostx.options import add_client_key_options, client_keys_from_args
-from lostx.replay.folder import folder_traverse
+from lostx.replay.dataset import open_traverse
 from lostx.replay.pace import Pace, check_realtime
 from lostx.stream.producer import FramePublisher
 from lostx.stream.replay import replay
@@ -16,7 +16,9 @@ from lostx.stream.replay import replay
 
 def register(sub: argparse._SubParsersAction) -> None:
     parser = sub.add_parser("replay", help="replay a traverse into the service as a live stream")
-    parser.add_argument("source", type=Path, help="folder of the traverse's images (name order)")
+    parser.add_argument("source", type=Path, help="the traverse: a folder of images (name order) or a RobotCar "
+                        "traverse folder (see docs/datasets.md)")
+    parser.add_argument("--format", choices=["folder", "robotcar"], help="the source's format (default: recognised)")
     parser.add_argument("--to", required=True, metavar="ENDPOINT",
                         help="the service's frames endpoint, e.g. tcp://127.0.0.1:5555")
     pace = parser.add_mutually_exclusive_group()
@@ -33,7 +35,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("--mirror", action="store_true",
                         help="flip the images left-right (a test of the flip handling, not an opposite view)")
     parser.add_argument("--positions", type=Path, metavar="CSV",
-                        help="positions (and timestamps) per image, sent for evaluation only")
+                        help="positions (and timestamps) per image, sent for evaluation only (RobotCar: the INS CSV)")
     enc = parser.add_argument_group("encoding")
     enc.add_argument("--encoding", choices=["raw", "png", "jpeg"],
                      help="raw pixels (default: exact and cheapest on one machine), png (exact), jpeg (networks)")
@@ -46,9 +48,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.set_defaults(run=run)
 
 
-def open_source(path: Path, positions: Path | None, camera: str, mirror: bool):
-    """A traverse from SOURCE. Only folders of images for now; dataset readers plug in here."""
-    return folder_traverse(path, positions, camera=camera, mirror=mirror)  # type: ignore[arg-type]
+def open_source(path: Path, format: str | None, positions: Path | None, camera: str, mirror: bool):
+    """A traverse from SOURCE through the dataset readers (any sized, re-iterable collection of Frames
+    would do: the replay itself knows nothing of formats)."""
+    return open_traverse(path, format, camera, positions, mirror)  # type: ignore[arg-type]
 
 
 def run(args: argparse.Namespace) -> int:
@@ -58,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--jpeg-quality goes with --encoding jpeg")
     encoding = args.encoding or ("jpeg" if args.jpeg_quality is not None else "raw")
     camera = "rear" if args.opposite else (args.camera or "front")
-    frames = open_source(args.source, args.positions, camera, args.mirror)
+    frames = open_source(args.source, args.format, args.positions, camera, args.mirror)
     if args.as_fast_as_possible:
         pace = Pace("unlimited")
     elif args.realtime:
