@@ -24,10 +24,11 @@ _SOF_MARKERS = frozenset({0xC0, 0xC1, 0xC2, 0xC3, 0xC5, 0xC6, 0xC7, 0xC9, 0xCA, 
 _STANDALONE = frozenset({0x01, *range(0xD0, 0xD9)})
 
 
-def encode_image(image: np.ndarray, encoding: str, quality: int = 90) -> bytes:
-    """``image`` (RGB uint8, H x W x 3) as the bytes of one wire encoding."""
+def encode_image(image: np.ndarray, encoding: str, quality: int = 90) -> bytes | memoryview:
+    """``image`` (RGB uint8, H x W x 3) as the bytes of one wire encoding (raw: a view of the
+    pixels, which msgpack copies once into the message)."""
     if encoding == "raw":
-        return np.ascontiguousarray(image).tobytes()
+        return memoryview(np.ascontiguousarray(image))
     bgr = np.ascontiguousarray(image[:, :, ::-1])
     if encoding == "jpeg":
         ok, data = cv2.imencode(".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, int(quality)])

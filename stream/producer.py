@@ -131,7 +131,7 @@ class FramePublisher:
         self._read_replies(0)
         if not self.lossless:
             try:
-                self._socket.send(payload, zmq.NOBLOCK)
+                self._socket.send(payload, zmq.NOBLOCK, copy=False)  # zero-copy: ZeroMQ sends from our bytes
             except zmq.Again:
                 self.counts.dropped += 1
                 return False
@@ -197,7 +197,7 @@ class FramePublisher:
                 return
             payload = self._pending[frame_id][0]
             try:
-                self._socket.send(payload, zmq.NOBLOCK)
+                self._socket.send(payload, zmq.NOBLOCK, copy=False)
             except zmq.Again:
                 # Not connected (the service is restarting) or its queue is full: wait and retry;
                 # the frame stays pending either way, so nothing is lost.

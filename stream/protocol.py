@@ -292,7 +292,7 @@ def encode_stats(stats: Stats) -> bytes:
 # Decoding
 
 
-def unpack(data: bytes, limits: Limits) -> dict[str, Any]:
+def unpack(data: bytes | memoryview, limits: Limits) -> dict[str, Any]:
     """One msgpack map from ``data``, within the limits; :class:`ProtocolError` otherwise."""
     if len(data) > limits.max_message_bytes:
         raise ProtocolError("too_large", f"message of {len(data)} bytes is over the limit of {limits.max_message_bytes}")
@@ -321,7 +321,7 @@ def read_frame_id(message: Mapping[str, Any]) -> int | None:
     return int(value) if _is_uint(value) else None
 
 
-def decode_request(data: bytes, limits: Limits) -> Hello | FrameMessage:
+def decode_request(data: bytes | memoryview, limits: Limits) -> Hello | FrameMessage:
     """A frames-channel message from a producer."""
     message = unpack(data, limits)
     frame_id = read_frame_id(message)

@@ -186,12 +186,9 @@ class LocalizerService:
     def close(self, linger_ms: int = 0) -> None:
         """Close the sockets; ZeroMQ keeps sending what it already holds for ``linger_ms``."""
         worker, self._worker = self._worker, None
-        if worker is not None:
-            if worker.is_alive():
-                worker.jobs.put(None)
-                worker.join(10)
-            else:
-                worker._wake.close(linger=0)  # never started: its socket is still open
+        if worker is not None and worker.is_alive():
+            worker.jobs.put(None)
+            worker.join(10)
         for socket in (self._results, self._frames, self._wake):
             if socket is not None:
                 socket.close(linger=linger_ms)
@@ -328,12 +325,13 @@ class LocalizerService:
             if self.lossless and len(self._queue) >= self.config.queue:
                 return  # leave the rest in the socket: ZeroMQ and TCP hold the producer back
             try:
-                parts = self._frames.recv_multipart(zmq.NOBLOCK)
+                # copy=False: decode straight from ZeroMQ's buffer (frames are megabytes).
+                parts = self._frames.recv_multipart(zmq.NOBLOCK, copy=False)
             except zmq.Again:
                 return
-            self._on_request(parts[0], parts[1:])
+            self._on_request(parts[0].bytes, [part.buffer for part in parts[1:]])
 
-    def _on_request(self, identity: bytes, parts: list[bytes]) -> None:
+    def _on_request(self, identity: bytes, parts: list[memoryview]) -> None:
         now = time.monotonic()
         self._producers[identity] = now
         try:

@@ -39,6 +39,8 @@ class Job:
 @dataclass
 class Answer:
     job: Job
+    frame: Frame | None = None
+    """The decoded frame (None where its image did not decode)."""
     estimate: Estimate | None = None
     code: str = ""
     text: str = ""
@@ -58,13 +60,17 @@ class Worker(threading.Thread):
         self.answers: queue.Queue[Answer | None] = queue.Queue()
         """Answers in order; ``None`` means the worker is idle again (sinks done)."""
         self.sink_failures = 0
-        self._wake = context.socket(zmq.PAIR)
-        self._wake.connect(wake_endpoint)
+        self._context = context
+        self._wake_endpoint = wake_endpoint
+        self._wake: zmq.Socket | None = None
         self._stream: str | None = None
         self._has_run = False
         self._failed_sinks: set[int] = set()
 
     def run(self) -> None:
+        # The wake-up socket is made here: a ZeroMQ socket belongs to the thread that uses it.
+        self._wake = self._context.socket(zmq.PAIR)
+        self._wake.connect(self._wake_endpoint)
         try:
             while True:
                 job = self.jobs.get()
@@ -72,14 +78,15 @@ class Worker(threading.Thread):
                     return
                 answer = self._answer(job)
                 self._post(answer)
-                if answer.estimate is not None:
-                    self._run_sinks(answer.estimate, job)
+                if answer.estimate is not None and answer.frame is not None:
+                    self._run_sinks(answer.frame, answer.estimate)
                 self._post(None)
         finally:
             self._wake.close(linger=0)
 
     def _post(self, item: Answer | None) -> None:
         self.answers.put(item)
+        assert self._wake is not None
         try:
             self._wake.send(b"", zmq.NOBLOCK)
         except zmq.Again:
@@ -88,22 +95,22 @@ class Worker(threading.Thread):
     def _answer(self, job: Job) -> Answer:
         message = job.message
         try:
-            self._frame = message.to_frame()
+            frame = message.to_frame()
+        except ProtocolError as exc:
+            return Answer(job, code=exc.code, text=exc.text)
+        try:
             if message.stream is not None and message.stream != self._stream and self._has_run:
                 self.localizer.reset()  # a new stream is a new traverse
             if message.stream is not None:
                 self._stream = message.stream
             self._has_run = True
-            return Answer(job, estimate=self.localizer.step(self._frame))
-        except ProtocolError as exc:
-            return Answer(job, code=exc.code, text=exc.text)
+            return Answer(job, frame, estimate=self.localizer.step(frame))
         except Exception as exc:  # the localizer must not take the service down with it
             if not isinstance(exc, LostxError):  # a bug rather than bad input: show where
                 self.log(f"frame {message.id}: unexpected {type(exc).__name__}\n{traceback.format_exc()}")
-            return Answer(job, code="localizer_failed", text=f"frame {message.id}: {exc}")
+            return Answer(job, frame, code="localizer_failed", text=f"frame {message.id}: {exc}")
 
-    def _run_sinks(self, estimate: Estimate, job: Job) -> None:
-        frame: Frame = self._frame
+    def _run_sinks(self, frame: Frame, estimate: Estimate) -> None:
         for sink in self.sinks:
             try:
                 sink(frame, estimate)
@@ -111,4 +118,4 @@ class Worker(threading.Thread):
                 self.sink_failures += 1
                 if id(sink) not in self._failed_sinks:  # the first failure in full, then only counted
                     self._failed_sinks.add(id(sink))
-                    self.log(f"sink {sink!r} failed on frame {job.message.id}:\n{traceback.format_exc()}")
+                    self.log(f"sink {sink!r} failed on frame {frame.id}:\n{traceback.format_exc()}")
