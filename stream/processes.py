@@ -1,6 +1,10 @@
 """Child processes that always end: the demo and the benchmark start ``lostx serve`` and
 ``lostx replay`` with a :class:`ProcessGroup`, which stops every one of them on the way
-out, whether the block ends normally, by an exception or by Ctrl-C."""
+out, whether the block ends normally, by an exception or by Ctrl-C.
+
+A parent killed outright (SIGKILL, a crash) runs no cleanup, so the children are also
+told to watch it: with ``LOSTX_EXIT_WITH_PARENT`` set, ``lostx`` sends itself SIGTERM
+(a clean stop) as soon as its parent is gone (:func:`exit_with_parent`)."""
 
 from __future__ import annotations
 
@@ -8,9 +12,27 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 from typing import IO, Sequence
+
+
+EXIT_WITH_PARENT = "LOSTX_EXIT_WITH_PARENT"
+
+
+def exit_with_parent(interval: float = 0.5) -> None:
+    """If ``$LOSTX_EXIT_WITH_PARENT`` is set, SIGTERM this process once its parent has exited."""
+    if not os.environ.get(EXIT_WITH_PARENT):
+        return
+    parent = os.getppid()
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(interval)
+        os.kill(os.getpid(), signal.SIGTERM)
+
+    threading.Thread(target=watch, name="lostx-parent-watch", daemon=True).start()
 
 
 def lostx_command(*args: str) -> list[str]:
@@ -35,7 +57,7 @@ class ProcessGroup:
             self._logs.append(out)
         process = subprocess.Popen(
             list(argv), stdout=out, stderr=subprocess.STDOUT if out else None, stdin=subprocess.DEVNULL,
-            env={**os.environ, **(env or {})},
+            env={**os.environ, EXIT_WITH_PARENT: "1", **(env or {})},
         )
         self.processes[name] = process
         return process

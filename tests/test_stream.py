@@ -11,6 +11,7 @@ import dataclasses
 import os
 import re
 import signal
+import sys
 import subprocess
 import threading
 import time
@@ -637,3 +638,23 @@ def test_demo_stops_every_process_it_started_on_ctrl_c(demo_workdir, robotcar):
         if demo.poll() is None:
             demo.kill()
             demo.wait()
+
+
+def test_children_stop_when_their_parent_is_killed(tmp_path):
+    """A parent that dies without cleaning up (SIGKILL, a crash) still leaves no service behind."""
+    script = (
+        "import os, sys, time\n"
+        "from lostx.stream.processes import ProcessGroup, lostx_command\n"
+        f"child = ProcessGroup().start('listen', lostx_command('listen', 'ipc://{tmp_path}/results', '--quiet'))\n"
+        "print(child.pid, flush=True)\n"
+        "time.sleep(float(sys.argv[1]))\n"
+        "os._exit(0)  # no cleanup at all\n"
+    )
+    parent = subprocess.Popen([sys.executable, "-c", script, "6"], stdout=subprocess.PIPE, text=True)
+    child = int(parent.stdout.readline())
+    assert parent.wait(60) == 0
+    try:
+        wait_for(lambda: not _alive(child), 10, "the orphaned child to stop")
+    finally:
+        if _alive(child):
+            os.kill(child, signal.SIGKILL)
