@@ -25,6 +25,7 @@ from .errors import InputError
 Scoring = Literal["eq4-lost", "eq4", "released"]
 DensityFilter = Literal["query", "both", "off"]
 Normalisation = Literal["running", "reference"]
+StreamMode = Literal["live", "lossless"]
 
 
 @dataclass(frozen=True)
@@ -129,6 +130,42 @@ class TrackerConfig:
 
 
 @dataclass(frozen=True)
+class StreamConfig:
+    """The ZeroMQ service: endpoints, flow control and the limits a peer's messages must keep
+    (docs/protocol.md explains each). Read by lostx.stream only; core never opens a socket."""
+
+    frames: str = "tcp://127.0.0.1:5555"
+    """Where the service binds the frames socket (ROUTER); producers connect here."""
+    results: str = "tcp://127.0.0.1:5556"
+    """Where the service binds the results socket (XPUB); listeners connect here."""
+    mode: StreamMode = "live"
+    """``live``: always work on the newest frame, count the others as dropped.
+    ``lossless``: answer every frame in order and hold producers back instead."""
+    window: int = 4
+    """Lossless: frames a producer may have sent and not yet had answered (its credit)."""
+    queue: int = 16
+    """Lossless: frames the service holds before it stops reading the socket (a safety net
+    behind the window for producers that ignore credit)."""
+    wait_listeners: int = 0
+    """Hold producers back until this many listeners have subscribed to results."""
+    max_message_bytes: int = 16 * 1024 * 1024
+    """A message above this is answered with a ``too_large`` error; above twice this the
+    transport drops the connection before reading it."""
+    max_pixels: int = 4096 * 4096
+    """Frames declaring more pixels are refused before anything is decoded."""
+    frame_hwm: int = 16
+    """ZeroMQ high-water mark (messages) of the frames socket."""
+    result_hwm: int = 1000
+    """ZeroMQ high-water mark (messages) per listener on the results socket."""
+    pending_results: int = 64
+    """Lossless: outgoing messages held for a slow listener before the localizer pauses."""
+    stats_interval: float = 1.0
+    """Seconds between stats (heartbeat) messages."""
+    linger: float = 2.0
+    """Seconds the service spends flushing results on exit."""
+
+
+@dataclass(frozen=True)
 class Config:
     """Everything lostx can be tuned by."""
 
@@ -137,6 +174,7 @@ class Config:
     verify: VerifyConfig = field(default_factory=VerifyConfig)
     sequence: SequenceConfig = field(default_factory=SequenceConfig)
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
+    stream: StreamConfig = field(default_factory=StreamConfig)
 
     def to_dict(self) -> dict[str, Any]:
         return _plain(dataclasses.asdict(self))

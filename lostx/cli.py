@@ -12,8 +12,9 @@ import sys
 
 from lostx import __version__
 from lostx.core.errors import LostxError
+from lostx.stream.processes import exit_with_parent
 
-COMMANDS = ("demo", "map", "match", "backbones")
+COMMANDS = ("demo", "map", "match", "serve", "replay", "listen", "keys", "backbones")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -29,6 +30,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    exit_with_parent()  # started by a lostx process (the demo, a test): do not outlive it
     parser = build_parser()
     args = parser.parse_args(argv)
     try:

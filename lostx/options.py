@@ -45,3 +45,49 @@ def config_from_args(args: argparse.Namespace) -> Config:
     if getattr(args, "no_tracker", False):
         tracker = dataclasses.replace(tracker, enabled=False)
     return dataclasses.replace(config, backbone=backbone, verify=verify, sequence=sequence, tracker=tracker)
+
+
+def add_stream_options(parser: argparse.ArgumentParser) -> None:
+    """Settings of the service (``[stream]`` in a --config file; these override it)."""
+    group = parser.add_argument_group("stream (see docs/protocol.md)")
+    group.add_argument("--frames", metavar="ENDPOINT",
+                       help="bind the frames socket here (default tcp://127.0.0.1:5555)")
+    group.add_argument("--results", metavar="ENDPOINT",
+                       help="bind the results socket here (default tcp://127.0.0.1:5556)")
+    group.add_argument("--mode", choices=["live", "lossless"],
+                       help="live: newest frame first, drop the rest (default); lossless: answer every frame in order")
+    group.add_argument("--credit", type=int, metavar="N", help="lossless: unanswered frames per producer (default 4)")
+    group.add_argument("--wait-listeners", type=int, metavar="N",
+                       help="hold producers back until N listeners subscribe (lossless: at least 1)")
+    group.add_argument("--max-message-bytes", type=int, metavar="BYTES", help="largest frame message (default 16 MiB)")
+    group.add_argument("--stats-interval", type=float, metavar="S", help="seconds between stats messages (default 1)")
+
+
+def add_client_key_options(parser: argparse.ArgumentParser) -> None:
+    group = parser.add_argument_group("CurveZMQ (for a service started with --curve-secret)")
+    group.add_argument("--curve-server", type=Path, metavar="FILE", help="the service's public key (.key)")
+    group.add_argument("--curve-secret", type=Path, metavar="FILE", help="this client's secret key (.key_secret)")
+
+
+def client_keys_from_args(args: argparse.Namespace):
+    """ClientKeys, or None without CurveZMQ options; both files are needed together."""
+    from lostx.core.errors import InputError
+    from lostx.stream.sockets import ClientKeys
+
+    server, secret = getattr(args, "curve_server", None), getattr(args, "curve_secret", None)
+    if server is None and secret is None:
+        return None
+    if server is None or secret is None:
+        raise InputError("CurveZMQ needs both --curve-server (the service's .key) and --curve-secret (yours)")
+    return ClientKeys(server, secret)
+
+
+def stream_config_from_args(args: argparse.Namespace, config: Config) -> Config:
+    """``config`` with the stream settings given on the command line applied."""
+    changes = {
+        name: getattr(args, name, None)
+        for name in ("frames", "results", "mode", "wait_listeners", "max_message_bytes", "stats_interval")
+    }
+    changes["window"] = getattr(args, "credit", None)
+    stream = dataclasses.replace(config.stream, **{k: v for k, v in changes.items() if v is not None})
+    return dataclasses.replace(config, stream=stream)

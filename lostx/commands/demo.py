@@ -1,15 +1,25 @@
-"""``lostx demo``: the day/night example on the RobotCar pair in ../shared/data."""
+"""``lostx demo``: the whole streaming loop on one machine, on the RobotCar day/night pair.
+
+It builds (or reuses) the day map, starts ``lostx serve`` on it, listens to the
+service's answers, and starts ``lostx replay`` on the night frames as a live
+stream; it prints each answer as it arrives and a summary against the index
+ground truth. Every process it starts is stopped on the way out (also on
+Ctrl-C and on errors).
+"""
 
 from __future__ import annotations
 
 import argparse
+import signal
+import sys
+import tempfile
+import time
 from pathlib import Path
 
 import numpy as np
 
 from lostx.core.config import Config
 from lostx.core.errors import InputError, MapError
-from lostx.core.matcher import PlaceMatcher
 from lostx.core.backbone import load_backbone
 from lostx.core.build import build_map
 from lostx.core.describe import LostDescriber
@@ -17,6 +27,10 @@ from lostx.core.paths import cache_dir, data_dir
 from lostx.core.refmap import ReferenceMap
 from lostx.options import add_backbone_options, config_from_args
 from lostx.replay.folder import folder_traverse
+from lostx.stream.client import Listener
+from lostx.stream.errors import StreamError
+from lostx.stream.processes import ProcessGroup, lostx_command
+from lostx.stream.protocol import ErrorMessage, Result, Stats
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -24,6 +38,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("--data", type=Path, help="folder holding robotcar-daynight/ (default ../shared/data)")
     parser.add_argument("--workdir", type=Path, help="where the demo keeps its map (default ~/.cache/lostx/demo)")
     parser.add_argument("--rebuild", action="store_true", help="rebuild the map even if one is there")
+    parser.add_argument("--rate", type=float, default=4.0, help="replay rate of the night frames in Hz (default 4)")
     add_backbone_options(parser)
     parser.set_defaults(run=run)
 
@@ -54,19 +69,97 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"demo data not found: {data} should hold day/ and night/ (pass --data or set LOSTX_DATA)")
     workdir = args.workdir or cache_dir() / "demo"
     refmap = demo_map(data / "day", workdir / f"robotcar-day-{config.backbone.name}", config, args.rebuild)
-    matcher = PlaceMatcher(refmap, config)
     night = folder_traverse(data / "night")
-    print(f"\n{'query':>14s}  {'match':>12s}  {'truth':>5s}  {'score':>8s}  {'conf':>5s}  {'corr':>4s}")
-    found = []
-    for frame in night:
-        result = matcher.match(frame.image)
-        found.append(result.best)
-        mark = "exact" if result.best == frame.id else ("+-1" if abs(result.best - frame.id) == 1 else "wrong")
-        print(f"{frame.name:>14s}  {refmap.names[result.best]:>12s}  {frame.id:>5d}  {result.score:8.4f}  "
-              f"{result.confidence:5.2f}  {int(result.n_matches[0]):4d}  {mark}")
-    truth = np.arange(len(found))
-    exact = int((np.asarray(found) == truth).sum())
-    near = int((np.abs(np.asarray(found) - truth) <= 1).sum())
-    print(f"\nnight -> day, single frame: {exact}/{len(found)} exact, {near}/{len(found)} within one frame "
-          f"(the authors' LoST-X on the same frames: 6 exact, 8 within one)")
+    # SIGTERM ends the demo like Ctrl-C does, through the cleanup below.
+    previous = signal.signal(signal.SIGTERM, _raise_interrupt)
+    try:
+        with tempfile.TemporaryDirectory(prefix="lostx-demo-") as tmp:
+            answers, final = _stream(args, refmap, night, Path(tmp))
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    _summary(answers, len(night), final)
     return 0
+
+
+def _raise_interrupt(_signum: int, _frame: object) -> None:
+    raise KeyboardInterrupt
+
+
+def _backbone_args(args: argparse.Namespace) -> list[str]:
+    out: list[str] = []
+    for option in ("backbone", "model", "device", "threads"):
+        value = getattr(args, option, None)
+        if value is not None:
+            out += [f"--{option}", str(value)]
+    return out
+
+
+def _stream(args: argparse.Namespace, refmap: ReferenceMap, night, tmp: Path) -> tuple[dict[int, Result], Stats | None]:
+    """Service, listener (this process) and replay: the answers by frame id, and the service's final stats."""
+    frames, results = f"ipc://{tmp}/frames", f"ipc://{tmp}/results"
+    last_id = len(night) - 1
+    answers: dict[int, Result] = {}
+    final: Stats | None = None
+    with ProcessGroup(log_dir=tmp) as procs, Listener(results) as listener:
+        # The service waits for this listener before it takes frames, so no answer is missed.
+        procs.start("serve", lostx_command("serve", "--map", str(refmap.path), "--frames", frames,
+                                           "--results", results, "--mode", "live", "--wait-listeners", "1",
+                                           *_backbone_args(args)))
+        procs.start("replay", lostx_command("replay", str(night.root), "--to", frames, "--rate", str(args.rate),
+                                            "--quiet", "--wait", "60"))
+        print(f"\nservice on {refmap.path.name}, replaying {len(night)} night frames at {args.rate:g} Hz (live mode)")
+        print(f"\n{'query':>14s}  {'match':>12s}  {'truth':>5s}  {'score':>8s}  {'conf':>5s}  {'corr':>4s}")
+        deadline = time.monotonic() + 120
+        while last_id not in answers:
+            message = listener.receive(0.5)
+            if isinstance(message, Result):
+                answers[message.frame_id] = message
+                print(_row(message, night, refmap), flush=True)
+            elif isinstance(message, ErrorMessage):
+                print(f"frame {message.frame_id}: error {message.code}: {message.text}")
+            for name in ("serve", "replay"):
+                code = procs.processes[name].poll()
+                if code not in (None, 0):
+                    raise StreamError(f"lostx {name} exited with code {code}:\n{procs.log(name).strip()}")
+            if time.monotonic() > deadline:
+                raise StreamError("the service did not answer the last frame within 120 s:\n" + procs.log("serve"))
+        # The last frame of a live stream is never superseded, so once it is answered all is done.
+        code = procs.stop("serve")
+        while final is None:
+            message = listener.receive(2.0)
+            if message is None:
+                break
+            if isinstance(message, Stats) and message.final:
+                final = message
+        if code != 0:
+            raise StreamError(f"lostx serve exited with code {code}:\n{procs.log('serve').strip()}")
+    return answers, final
+
+
+def _row(r: Result, night, refmap: ReferenceMap) -> str:
+    corr = r.candidates[0].correspondences if r.candidates else 0
+    score = float("nan") if r.score is None else r.score
+    mark = _mark(r.match_index, r.frame_id)
+    return (f"{night.files[r.frame_id].name:>14s}  {refmap.names[r.match_index]:>12s}  {r.frame_id:>5d}  "
+            f"{score:8.4f}  {r.confidence:5.2f}  {corr:4d}  {mark}")
+
+
+def _mark(match: int, truth: int) -> str:
+    return "exact" if match == truth else ("+-1" if abs(match - truth) == 1 else "wrong")
+
+
+def _summary(answers: dict[int, Result], n_frames: int, final: Stats | None) -> None:
+    found = np.array([r.match_index for r in answers.values()])
+    truth = np.array(list(answers))
+    exact = int((found == truth).sum())
+    near = int((np.abs(found - truth) <= 1).sum())
+    n = len(answers)
+    dropped = f"; {final.dropped} dropped by the live service" if final is not None and final.dropped else ""
+    print(f"\nnight -> day, streamed: {exact}/{n} exact, {near}/{n} within one frame "
+          f"(answered {n} of {n_frames}{dropped}; the authors' LoST-X on the same frames: 6 exact, 8 within one)")
+    if final is not None:
+        step = final.latency_ms.get("step", {})
+        service = final.latency_ms.get("service", {})
+        if "p50" in step and "p50" in service:
+            print(f"latency: localizer {step['p50']:.0f} ms, frame read -> answer published {service['p50']:.0f} ms "
+                  f"(medians)")

@@ -1,0 +1,88 @@
+"""``lostx serve --map MAP``: the localizer service (frames in, results out, over ZeroMQ)."""
+
+from __future__ import annotations
+
+import argparse
+import signal
+from pathlib import Path
+
+from lostx.core.errors import InputError
+from lostx.core.localizer import Localizer
+from lostx.core.refmap import ReferenceMap
+from lostx.options import add_config_options, add_stream_options, config_from_args, stream_config_from_args
+from lostx.sinks import resolve_sink
+from lostx.stream.service import LocalizerService
+from lostx.stream.sinks import JsonlSink
+from lostx.stream.sockets import ServerKeys
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    parser = sub.add_parser("serve", help="run the localizer as a ZeroMQ service (see docs/protocol.md)")
+    parser.add_argument("--map", type=Path, required=True, help="reference map folder (from `lostx map build`)")
+    add_stream_options(parser)
+    out = parser.add_argument_group("sinks")
+    out.add_argument("--jsonl", type=Path, metavar="FILE", help="also append every answer to FILE as JSON lines")
+    out.add_argument("--sink", action="append", default=[], metavar="NAME[=ARG]",
+                     help="hand every answer to a sink: jsonl=FILE, or package.module:factory[=ARG] (repeatable)")
+    sec = parser.add_argument_group("security")
+    sec.add_argument("--curve-secret", type=Path, metavar="FILE",
+                     help="the service's secret key (.key_secret from `lostx keys`): CurveZMQ on both sockets")
+    sec.add_argument("--curve-clients", type=Path, metavar="DIR",
+                     help="folder of the public keys (.key) of the producers and listeners allowed in")
+    sec.add_argument("--insecure", action="store_true",
+                     help="allow binding a non-loopback address without CurveZMQ (trusted networks only)")
+    add_config_options(parser)
+    parser.set_defaults(run=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    stop = _SignalStop()
+    with stop:
+        config = stream_config_from_args(args, config_from_args(args))
+        keys = None
+        if args.curve_secret or args.curve_clients:
+            if not (args.curve_secret and args.curve_clients):
+                raise InputError("CurveZMQ needs both --curve-secret and --curve-clients")
+            keys = ServerKeys(args.curve_secret, args.curve_clients)
+        refmap = ReferenceMap.open(args.map)
+        localizer = Localizer(refmap, config)
+        sinks = [resolve_sink(spec) for spec in args.sink]
+        if args.jsonl:
+            sinks.append(JsonlSink(args.jsonl))
+        service = LocalizerService(localizer, config.stream, sinks=sinks, keys=keys, insecure=args.insecure)
+        stop.attach(service)
+        with service:
+            final = service.run()
+    service.log(f"answered {final.answered} of {final.received} frames ({final.dropped} dropped, "
+                f"{final.missing} missing, {final.errors} errors) in {final.uptime_s:.1f} s")
+    return 0
+
+
+class _SignalStop:
+    """SIGINT/SIGTERM stop the service gracefully: the frame in hand is finished and flushed.
+
+    Installed before the map loads, so a signal that arrives while starting up still
+    ends in a clean stop instead of a traceback."""
+
+    def __init__(self) -> None:
+        self.service: LocalizerService | None = None
+        self.signal_name: str | None = None
+        self._previous: dict[int, object] = {}
+
+    def attach(self, service: LocalizerService) -> None:
+        self.service = service
+        if self.signal_name is not None:
+            service.stop(self.signal_name)
+
+    def _on_signal(self, signum: int, _frame: object) -> None:
+        self.signal_name = signal.Signals(signum).name
+        if self.service is not None:
+            self.service.stop(self.signal_name)
+
+    def __enter__(self) -> "_SignalStop":
+        self._previous = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        for s, handler in self._previous.items():
+            signal.signal(s, handler)  # type: ignore[arg-type]

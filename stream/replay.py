@@ -1,0 +1,98 @@
+"""Replaying a traverse into the service: pacing (lostx.replay.pace) + a :class:`FramePublisher`."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+from tqdm import tqdm
+
+from lostx.replay.pace import FrameSource, Pace, paced
+
+from .producer import FramePublisher
+
+
+@dataclass
+class ReplaySummary:
+    frames: int = 0
+    """Frames taken from the traverse (all laps)."""
+    sent: int = 0
+    dropped: int = 0
+    acked: int = 0
+    resent: int = 0
+    refused: int = 0
+    laps: int = 0
+    seconds: float = 0.0
+    mode: str = ""
+    sessions: list[str] = field(default_factory=list)
+    errors: list[str] = field(default_factory=list)
+    unanswered: int = 0
+    interrupted: bool = False
+
+    def line(self) -> str:
+        rate = self.sent / self.seconds if self.seconds > 0 else 0.0
+        parts = [f"sent {self.sent} of {self.frames} frames in {self.seconds:.1f} s ({rate:.1f} frames/s)",
+                 f"{self.mode} service"]
+        if self.mode == "lossless":
+            parts.append(f"{self.acked} answered")
+            if self.unanswered:
+                parts.append(f"{self.unanswered} NOT answered")
+        if self.dropped:
+            parts.append(f"{self.dropped} dropped (service busy or absent)")
+        if self.resent:
+            parts.append(f"{self.resent} resent")
+        if self.refused:
+            parts.append(f"{self.refused} refused: {self.errors[-1] if self.errors else ''}")
+        if len(self.sessions) > 1:
+            parts.append(f"the service restarted {len(self.sessions) - 1} time(s)")
+        if self.interrupted:
+            parts.append("interrupted")
+        return "; ".join(parts)
+
+
+def replay(
+    frames: FrameSource,
+    publisher: FramePublisher,
+    pace: Pace,
+    *,
+    loop: bool = False,
+    progress: bool = True,
+    wait: float | None = None,
+    flush_timeout: float | None = None,
+    should_stop: Callable[[], bool] | None = None,
+) -> ReplaySummary:
+    """Wait for the service (``wait`` seconds at most, None = forever), send every frame at the
+    pace, and in lossless mode wait until all are answered (``flush_timeout``)."""
+    ready = publisher.wait_ready(wait)
+    summary = ReplaySummary(mode=ready.mode)
+    base_stream = publisher.stream
+    bar = tqdm(total=None if loop else len(frames), unit="frame", desc="replay", disable=not progress,
+               leave=False, dynamic_ncols=True)
+    start = time.perf_counter()
+    try:
+        for item in paced(frames, pace, loop=loop, should_stop=should_stop):
+            # Each lap is a traverse of its own: a new stream, so the service starts it afresh.
+            publisher.stream = base_stream if item.lap == 0 else f"{base_stream}.{item.lap}"
+            summary.laps = item.lap + 1
+            summary.frames += 1
+            publisher.send(item.frame)
+            bar.update(1)
+            if publisher.counts.dropped or publisher.counts.refused:
+                bar.set_postfix(dropped=publisher.counts.dropped, refused=publisher.counts.refused, refresh=False)
+        if publisher.lossless:
+            bar.set_description("waiting for answers")
+            publisher.flush(flush_timeout)
+    except KeyboardInterrupt:
+        summary.interrupted = True
+    finally:
+        bar.close()
+        counts = publisher.counts
+        summary.seconds = time.perf_counter() - start
+        summary.sent, summary.dropped, summary.acked = counts.sent, counts.dropped, counts.acked
+        summary.resent, summary.refused = counts.resent, counts.refused
+        summary.sessions = list(counts.sessions)
+        summary.errors = [f"frame {e.frame_id}: {e.code}: {e.text}" for e in publisher.errors]
+        summary.unanswered = publisher.in_flight
+        summary.mode = publisher.ready.mode if publisher.ready else summary.mode
+    return summary

@@ -1,0 +1,507 @@
+"""The localizer service: frames in over ZeroMQ, a stateful Localizer, results out.
+
+Two threads. The I/O loop (the thread that calls :meth:`LocalizerService.run`)
+owns both sockets: it reads every message as soon as it arrives, answers bad
+ones with an error at once, counts listeners, publishes answers and stats, and
+hands one frame at a time to the :class:`~lostx.stream.worker.Worker`, which
+owns the Localizer and the sinks.
+
+``live`` mode keeps one slot: a newer frame replaces the one waiting there
+(counted as dropped), so a slow localizer always starts on the newest frame.
+``lossless`` mode keeps a FIFO and answers every frame in order; producers are
+held back by credit (docs/protocol.md), the FIFO is bounded, and answers wait
+for a slow listener (XPUB_NODROP) instead of being dropped, which pauses the
+worker and, through the credit, the producers.
+
+:meth:`LocalizerService.stop` (from a signal handler or another thread) lets
+the worker finish the frame in hand, publishes its answer and the final stats,
+and returns.
+"""
+
+from __future__ import annotations
+
+import queue
+import secrets
+import sys
+import threading
+import time
+from collections import Counter, deque
+from dataclasses import dataclass
+from typing import Any, Callable, Sequence
+
+import zmq
+
+from lostx.core.config import StreamConfig
+from lostx.core.localizer import Localizer
+
+from . import protocol as wire
+from .errors import ProtocolError, StreamError
+from .protocol import Ack, ErrorMessage, FrameMessage, Hello, Limits, Ready, Stats
+from .sinks import Sink, close_sink
+from .sockets import ServerKeys, apply_server_keys, bind, check_bind_endpoint, keep_alive, start_authenticator
+from .stats import ServiceCounters
+from .worker import Answer, Job, Worker
+
+READ_BATCH = 10_000
+"""Most messages read from the frames socket in one go (keeps the loop responsive)."""
+POLL_MS = 100
+"""Longest sleep in poll: how soon a stop request or a stats deadline is noticed."""
+RETRY_MS = 5
+"""How often answers held back by a slow listener are offered to the results socket again."""
+RECENT_IDS = 1024
+"""Lossless: answered frame ids remembered per stream, to recognise a producer's resend."""
+PRODUCER_ACTIVE_S = 10.0
+"""A producer counts as connected in stats while it sent something this recently."""
+
+
+@dataclass
+class _Outgoing:
+    """An answer waiting for the results socket; the producer's reply goes once it is out."""
+
+    topic: bytes
+    payload: bytes
+    reply_to: bytes
+    reply: bytes | None
+    received: float
+    key: tuple[str, int] | None = None
+    """(stream, frame id) of the answered frame, to recognise resends until it is out."""
+
+
+def check_config(config: StreamConfig) -> None:
+    for name in ("window", "queue", "max_message_bytes", "max_pixels", "frame_hwm", "result_hwm", "pending_results"):
+        if getattr(config, name) < 1:
+            raise StreamError(f"stream setting {name} must be at least 1, got {getattr(config, name)}")
+    if config.wait_listeners < 0:
+        raise StreamError(f"stream setting wait_listeners must be 0 or more, got {config.wait_listeners}")
+    for name in ("stats_interval", "linger"):
+        if getattr(config, name) <= 0:
+            raise StreamError(f"stream setting {name} must be positive, got {getattr(config, name)}")
+    if config.queue < config.window:
+        raise StreamError(f"stream setting queue ({config.queue}) must be at least window ({config.window})")
+
+
+class LocalizerService:
+    """Serves one Localizer over ZeroMQ: ``with LocalizerService(localizer, config) as s: s.run()``.
+
+    ``sinks`` are called with ``(frame, estimate)`` after each answer is published.
+    ``keys`` turns CurveZMQ on; ``insecure`` allows a non-loopback bind without it.
+    """
+
+    def __init__(
+        self,
+        localizer: Localizer,
+        config: StreamConfig | None = None,
+        *,
+        sinks: Sequence[Sink] = (),
+        keys: ServerKeys | None = None,
+        insecure: bool = False,
+        log: Callable[[str], None] | None = None,
+    ) -> None:
+        self.localizer = localizer
+        self.config = config or StreamConfig()
+        check_config(self.config)
+        self.sinks = list(sinks)
+        self.keys = keys
+        self.insecure = insecure
+        self.log = log or (lambda text: print(f"lostx serve: {text}", file=sys.stderr, flush=True))
+        self.limits = Limits.from_config(self.config)
+        self.session = secrets.token_hex(4)
+        self.lossless = self.config.mode == "lossless"
+        # Lossless never publishes answers into the void: it waits for at least one listener.
+        self.min_listeners = max(self.config.wait_listeners, 1 if self.lossless else 0)
+        self.counters = ServiceCounters()
+        self.endpoints: tuple[str, str] | None = None
+
+        self._stop = threading.Event()
+        self._stop_reason = ""
+        self._context: zmq.Context | None = None
+        self._auth: Any = None
+        self._frames: zmq.Socket | None = None
+        self._results: zmq.Socket | None = None
+        self._wake: zmq.Socket | None = None
+        self._worker: Worker | None = None
+        self._busy: Job | None = None  # the job the worker has in hand
+        self._slot: Job | None = None  # live: the newest frame not yet started
+        self._queue: deque[Job] = deque()  # lossless: frames in order
+        self._outgoing: deque[_Outgoing] = deque()
+        self._subscriptions: Counter[bytes] = Counter()
+        self._producers: dict[bytes, float] = {}
+        self._waiting: set[bytes] = set()  # producers owed a ready
+        self._recent: dict[str, tuple[deque[int], set[int]]] = {}  # lossless: answered ids per stream
+        self._unpublished: set[tuple[str, int]] = set()  # lossless: taken, answer not yet out
+        self._last_answered: int | None = None
+        self._next_stats = 0.0
+
+    # -- lifecycle -----------------------------------------------------------------------------
+
+    def __enter__(self) -> "LocalizerService":
+        if self.endpoints is None:
+            self.bind()
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+    def bind(self) -> tuple[str, str]:
+        """Bind both sockets; returns the endpoints actually bound (``:0`` picks a free port)."""
+        cfg = self.config
+        for endpoint in (cfg.frames, cfg.results):
+            check_bind_endpoint(endpoint, secure=self.keys is not None, insecure_ok=self.insecure)
+        self._context = zmq.Context()
+        try:
+            if self.keys is not None:
+                self._auth = start_authenticator(self._context, self.keys)
+            frames = self._context.socket(zmq.ROUTER)
+            frames.setsockopt(zmq.RCVHWM, cfg.frame_hwm)
+            frames.setsockopt(zmq.SNDHWM, 1000)
+            # Transport-level cap: libzmq reads the length prefix and drops a peer announcing more,
+            # before allocating. Up to twice the protocol limit still arrives and gets a polite error.
+            frames.setsockopt(zmq.MAXMSGSIZE, 2 * cfg.max_message_bytes)
+            results = self._context.socket(zmq.XPUB)
+            results.setsockopt(zmq.SNDHWM, cfg.result_hwm)
+            results.setsockopt(zmq.XPUB_VERBOSER, 1)  # every (un)subscription, to count listeners
+            results.setsockopt(zmq.XPUB_NODROP, 1 if self.lossless else 0)
+            results.setsockopt(zmq.MAXMSGSIZE, 4096)  # listeners only send short subscriptions
+            for socket in (frames, results):
+                socket.setsockopt(zmq.LINGER, 0)
+                keep_alive(socket)  # a listener on a vanished host cannot hold the service forever
+                if self.keys is not None:
+                    apply_server_keys(socket, self.keys)
+            self._frames, self._results = frames, results
+            self.endpoints = (bind(frames, cfg.frames), bind(results, cfg.results))
+            wake_endpoint = f"inproc://lostx-wake-{self.session}"
+            self._wake = self._context.socket(zmq.PAIR)
+            self._wake.bind(wake_endpoint)
+            self._worker = Worker(self.localizer, self.sinks, self._context, wake_endpoint, self.log)
+        except BaseException:
+            self.close()
+            raise
+        return self.endpoints
+
+    def stop(self, reason: str = "stop requested") -> None:
+        """Finish the frame in hand, flush, and return from :meth:`run`. Safe in signal handlers."""
+        self._stop_reason = reason
+        self._stop.set()
+
+    def close(self, linger_ms: int = 0) -> None:
+        """Close the sockets; ZeroMQ keeps sending what it already holds for ``linger_ms``."""
+        worker, self._worker = self._worker, None
+        if worker is not None and worker.is_alive():
+            worker.jobs.put(None)
+            worker.join(10)
+        for socket in (self._results, self._frames, self._wake):
+            if socket is not None:
+                socket.close(linger=linger_ms)
+        self._frames = self._results = self._wake = None
+        if self._auth is not None:
+            self._auth.stop()
+            self._auth = None
+        if self._context is not None:
+            self._context.term()
+            self._context = None
+
+    # -- the I/O loop --------------------------------------------------------------------------
+
+    def run(self) -> Stats:
+        """Serve until :meth:`stop`; returns the final stats (also published)."""
+        if self.endpoints is None:
+            self.bind()
+        assert self._worker is not None
+        cfg = self.config
+        self.log(f"{cfg.mode} mode, session {self.session}; frames {self.endpoints[0]} (ROUTER), "
+                 f"results {self.endpoints[1]} (XPUB)" + ("; CurveZMQ on" if self.keys else ""))
+        self._worker.start()
+        try:
+            while not self._stop.is_set():
+                self._turn()
+            # Stopping: the frame in hand is finished and its answer published.
+            deadline = time.monotonic() + max(60.0, cfg.linger)
+            while self._busy is not None and time.monotonic() < deadline:
+                self._turn(dispatch=False)
+        finally:
+            final = self._shutdown()
+        return final
+
+    def _turn(self, dispatch: bool = True) -> None:
+        """One turn of the loop: wait for something, then read, publish, dispatch."""
+        assert self._frames is not None and self._results is not None and self._wake is not None
+        poller = zmq.Poller()
+        read_frames = not self.lossless or len(self._queue) < self.config.queue
+        if read_frames:
+            poller.register(self._frames, zmq.POLLIN)
+        poller.register(self._results, zmq.POLLIN)
+        poller.register(self._wake, zmq.POLLIN)
+        events = dict(poller.poll(self._sleep_ms()))
+        if events.get(self._wake):
+            self._collect_answers()
+        if read_frames and events.get(self._frames, 0) & zmq.POLLIN:
+            self._read_frames()
+        if events.get(self._results, 0) & zmq.POLLIN:
+            self._read_subscriptions()
+        self._flush()
+        if self._waiting and self._listeners() >= self.min_listeners:
+            for identity in self._waiting:
+                self._reply(identity, wire.encode_ready(self._ready()))
+            self._waiting.clear()
+        if dispatch:
+            self._dispatch()
+        self._maybe_stats()
+
+    def _sleep_ms(self) -> int:
+        until_stats = max(0.0, self._next_stats - time.monotonic())
+        if self._outgoing:
+            # Answers wait for a slow listener. An XPUB socket always polls writable, whether or not
+            # a listener's queue is full, so retry on a short timer instead of spinning on POLLOUT.
+            return int(min(RETRY_MS, 1e3 * until_stats))
+        return int(min(POLL_MS, 1e3 * until_stats))
+
+    def _dispatch(self) -> None:
+        """Give the worker the next frame if it is free and nothing holds the service back."""
+        assert self._worker is not None
+        if self._busy is not None or self._listeners() < self.min_listeners:
+            return
+        if self.lossless:
+            if len(self._outgoing) >= self.config.pending_results:
+                return  # a listener is slow: wait for it rather than drop answers
+            while self._queue:
+                job = self._queue.popleft()
+                if not self._answered_before(job.message):
+                    break
+                # A producer resent, after a reconnection, a frame this session already has: answer
+                # it once. If that answer is out, its ack may have been lost: acknowledge again;
+                # if not, the ack goes with the answer.
+                self.counters.duplicates += 1
+                if _key(job.message) not in self._unpublished:
+                    self._reply(job.identity, wire.encode_ack(Ack(self.session, job.message.id)))
+            else:
+                return
+            self._remember(job.message)
+        else:
+            if self._slot is None:
+                return
+            job, self._slot = self._slot, None
+        self._busy = job
+        self._worker.jobs.put(job)
+
+    def _collect_answers(self) -> None:
+        assert self._wake is not None and self._worker is not None
+        while True:
+            try:
+                self._wake.recv(zmq.NOBLOCK)
+            except zmq.Again:
+                break
+        while True:
+            try:
+                answer = self._worker.answers.get_nowait()
+            except queue.Empty:
+                return
+            if answer is None:
+                self._busy = None  # idle again (its sinks are done)
+            else:
+                self._publish_answer(answer)
+
+    def _publish_answer(self, answer: Answer) -> None:
+        job = answer.job
+        self._last_answered = job.message.id
+        if answer.estimate is not None:
+            self.counters.answered += 1
+            self.counters.step_ms.add(answer.estimate.latency_ms.get("total", 0.0))
+            payload = wire.encode_result(answer.estimate.summary(), self.session)
+            reply = wire.encode_ack(Ack(self.session, job.message.id)) if self.lossless else None
+            self._outgoing.append(_Outgoing(b"result", payload, job.identity, reply, job.received,
+                                            _key(job.message)))
+        else:
+            # A frame that was accepted but cannot be answered: its answer is this error, in order.
+            # The sender hears of it in both modes; in lossless mode it also returns the credit.
+            self.counters.errors[answer.code] += 1
+            error = wire.encode_error(ErrorMessage(answer.code, answer.text, job.message.id, self.session))
+            self._outgoing.append(_Outgoing(b"error", error, job.identity, error, job.received,
+                                            _key(job.message)))
+        self._flush()
+
+    def _read_frames(self) -> None:
+        assert self._frames is not None
+        for _ in range(READ_BATCH):
+            if self.lossless and len(self._queue) >= self.config.queue:
+                return  # leave the rest in the socket: ZeroMQ and TCP hold the producer back
+            try:
+                # copy=False: decode straight from ZeroMQ's buffer (frames are megabytes).
+                parts = self._frames.recv_multipart(zmq.NOBLOCK, copy=False)
+            except zmq.Again:
+                return
+            self._on_request(parts[0].bytes, [part.buffer for part in parts[1:]])
+
+    def _on_request(self, identity: bytes, parts: list[memoryview]) -> None:
+        now = time.monotonic()
+        self._producers[identity] = now
+        try:
+            if len(parts) != 1:
+                raise ProtocolError("multipart", f"expected one message part, got {len(parts)}")
+            message = wire.decode_request(parts[0], self.limits)
+        except ProtocolError as exc:
+            self._refuse(identity, exc.code, exc.text, exc.frame_id)
+            return
+        if isinstance(message, Hello):
+            if self._listeners() >= self.min_listeners:
+                self._reply(identity, wire.encode_ready(self._ready()))
+            else:
+                self._waiting.add(identity)
+            return
+        self.counters.received += 1
+        self.counters.saw_frame(message.stream, message.id)
+        job = Job(identity, message, now)
+        if self.lossless:
+            self._queue.append(job)
+        else:
+            if self._slot is not None:
+                self.counters.dropped += 1
+            self._slot = job
+
+    def _ready(self) -> Ready:
+        window = self.config.window if self.lossless else 0
+        return Ready(self.session, self.config.mode, window, self.config.max_message_bytes, self.config.max_pixels)
+
+    def _read_subscriptions(self) -> None:
+        assert self._results is not None
+        while True:
+            try:
+                data = self._results.recv(zmq.NOBLOCK)
+            except zmq.Again:
+                return
+            if not data or data[0] not in (0, 1):
+                continue  # not a subscription message; listeners may only (un)subscribe
+            topic = data[1:]
+            self._subscriptions[topic] += 1 if data[0] == 1 else -1
+            if self._subscriptions[topic] <= 0:
+                del self._subscriptions[topic]
+
+    def _listeners(self) -> int:
+        """Subscriptions that receive results (a topic that is a prefix of ``result``)."""
+        return sum(n for topic, n in self._subscriptions.items() if b"result".startswith(topic))
+
+    def _answered_before(self, message: FrameMessage) -> bool:
+        if message.stream is None:
+            return False  # without a stream id a new run's frame 0 and a resent frame 0 look alike
+        recent = self._recent.get(message.stream)
+        return recent is not None and message.id in recent[1]
+
+    def _remember(self, message: FrameMessage) -> None:
+        """Keep the ids of the last frames answered per stream (a resend is at most a window old)."""
+        if message.stream is None:
+            return
+        if message.stream not in self._recent:
+            if len(self._recent) >= 64:
+                del self._recent[next(iter(self._recent))]
+            self._recent[message.stream] = (deque(), set())
+        order, ids = self._recent[message.stream]
+        order.append(message.id)
+        ids.add(message.id)
+        self._unpublished.add((message.stream, message.id))
+        if len(order) > RECENT_IDS:
+            ids.discard(order.popleft())
+
+    # -- sending -------------------------------------------------------------------------------
+
+    def _refuse(self, identity: bytes, code: str, text: str, frame_id: int | None) -> None:
+        """A message that could not be read: tell its sender, and the listeners (best effort)."""
+        error = wire.encode_error(ErrorMessage(code, text, frame_id, self.session))
+        self.counters.errors[code] += 1
+        self._reply(identity, error)
+        self._publish_now(b"error", error)
+
+    def _publish_now(self, topic: bytes, payload: bytes) -> bool:
+        """Publish outside the queue of answers, or not at all if a listener is full.
+
+        For stats and for errors about unreadable messages: they are not part of the
+        sequence of answers, so they neither wait behind a slow listener nor grow memory
+        when a peer floods the service with garbage."""
+        assert self._results is not None
+        try:
+            self._results.send_multipart([topic, payload], zmq.NOBLOCK)
+            return True
+        except zmq.Again:
+            return False
+
+    def _reply(self, identity: bytes, payload: bytes) -> None:
+        assert self._frames is not None
+        try:
+            # ROUTER drops (never blocks on) a reply to a producer that is gone or not reading.
+            self._frames.send_multipart([identity, payload], zmq.NOBLOCK)
+        except zmq.ZMQError:
+            pass
+
+    def _flush(self) -> None:
+        """Hand queued answers to the results socket until it pushes back (lossless) or all are out."""
+        assert self._results is not None
+        while self._outgoing:
+            item = self._outgoing[0]
+            try:
+                self._results.send_multipart([item.topic, item.payload], zmq.NOBLOCK)
+            except zmq.Again:
+                return  # a listener is full (XPUB_NODROP): keep it; the worker pauses
+            self._outgoing.popleft()
+            if item.key is not None:
+                self._unpublished.discard(item.key)
+            if item.reply is not None:
+                self._reply(item.reply_to, item.reply)
+            self.counters.service_ms.add(1e3 * (time.monotonic() - item.received))
+
+    # -- stats and shutdown --------------------------------------------------------------------
+
+    def stats(self, final: bool = False) -> Stats:
+        now = time.monotonic()
+        for identity, seen in list(self._producers.items()):
+            if now - seen > PRODUCER_ACTIVE_S:
+                del self._producers[identity]
+        c = self.counters
+        by_code = dict(c.errors)
+        sink_failures = self._worker.sink_failures if self._worker is not None else 0
+        if sink_failures:
+            by_code["sink_failed"] = sink_failures  # counted, but no error message is sent for these
+        return Stats(
+            session=self.session, mode=self.config.mode, uptime_s=c.uptime, received=c.received,
+            answered=c.answered, dropped=c.dropped, missing=c.missing, duplicates=c.duplicates,
+            errors=sum(c.errors.values()), errors_by_code=by_code,
+            queued_frames=len(self._queue) + (self._slot is not None), queued_results=len(self._outgoing),
+            listeners=self._listeners(), producers=len(self._producers),
+            latency_ms={"step": c.step_ms.summary(), "service": c.service_ms.summary()}, final=final,
+        )
+
+    def _maybe_stats(self) -> None:
+        now = time.monotonic()
+        if now >= self._next_stats:
+            self._next_stats = now + self.config.stats_interval
+            self._publish_now(b"stats", wire.encode_stats(self.stats()))
+
+    def _shutdown(self) -> Stats:
+        """Flush what is answered (within ``linger``), publish the final stats, close."""
+        if self._stop.is_set():
+            unanswered = len(self._queue) + (self._slot is not None)
+            last = f"last answered frame {self._last_answered}, " if self._last_answered is not None else ""
+            self.log(f"{self._stop_reason}: {last}stopping after {self.counters.answered} answers"
+                     + (f"; {unanswered} queued frame(s) left unanswered" if unanswered else ""))
+        deadline = time.monotonic() + self.config.linger
+        final = self.stats(final=True)
+        if self._results is not None:
+            while self._outgoing and time.monotonic() < deadline:
+                self._flush()
+                if self._outgoing:
+                    time.sleep(RETRY_MS / 1e3)
+            if self._outgoing:
+                self.log(f"{len(self._outgoing)} answer(s) not delivered within {self.config.linger:.1f} s")
+            final = self.stats(final=True)
+            payload = wire.encode_stats(final)
+            while not self._publish_now(b"stats", payload) and time.monotonic() < deadline:
+                time.sleep(RETRY_MS / 1e3)
+        for sink in self.sinks:
+            try:
+                close_sink(sink)
+            except Exception as exc:
+                self.log(f"sink {sink!r} failed to close: {exc}")
+        # ZeroMQ finishes sending what it has taken within what is left of the linger time.
+        self.close(linger_ms=max(0, int(1e3 * (deadline - time.monotonic()))))
+        return final
+
+
+def _key(message: FrameMessage) -> tuple[str, int] | None:
+    return None if message.stream is None else (message.stream, message.id)

@@ -1,0 +1,660 @@
+"""The streaming system with real processes, real maps and the real Localizer.
+
+Every process a test starts is stopped by the ``procs`` fixture (TERM, then KILL);
+every wait has a timeout; endpoints are free TCP ports on loopback or IPC paths
+in the test's temporary folder.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import re
+import signal
+import sys
+import subprocess
+import threading
+import time
+from pathlib import Path
+
+import msgpack
+import numpy as np
+import pytest
+import zmq
+
+from lostx.core.config import StreamConfig
+from lostx.core.frame import Frame
+from lostx.core.localizer import Localizer
+from lostx.replay.folder import folder_traverse
+from lostx.replay.pace import Pace, paced
+from lostx.stream import protocol as wire
+from lostx.stream.client import Listener
+from lostx.stream.errors import StreamError
+from lostx.stream.producer import FramePublisher
+from lostx.stream.protocol import ErrorMessage, Limits, Ready, Result
+from lostx.stream.replay import replay
+from lostx.stream.service import LocalizerService
+from lostx.stream.sockets import ClientKeys
+
+from streamtools import (  # noqa: F401  (fixtures)
+    Collector, endpoints, free_port, lostx_command, nordland_subset, procs, read_jsonl, thumb_map, wait_for,
+)
+
+WINTER_FRAMES = 3576
+
+
+def serve(refmap, frames: str, results: str, mode: str, *extra: str) -> list[str]:
+    return lostx_command("serve", "--map", str(refmap.path), "--frames", frames, "--results", results,
+                         "--mode", mode, "--stats-interval", "0.2", *extra)
+
+
+def replay_cmd(source: Path, frames: str, *extra: str) -> list[str]:
+    return lostx_command("replay", str(source), "--to", frames, "--quiet", "--wait", "60", *extra)
+
+
+@pytest.fixture(scope="module")
+def night_expected(day_map, robotcar, mosaic) -> list[dict]:
+    """The Localizer run directly, in this process, over the night frames in order."""
+    localizer = Localizer(day_map, backbone=mosaic)
+    return [localizer.step(frame).summary() for frame in folder_traverse(robotcar / "night")]
+
+
+def same_answer(got: dict, expected: dict) -> None:
+    for key in ("frame_id", "state", "match_index", "match_name", "single_match_index", "opposite", "window"):
+        assert got[key] == expected[key], (key, got[key], expected[key])
+    assert got["confidence"] == pytest.approx(expected["confidence"], abs=1e-9)
+    assert got["score"] == pytest.approx(expected["score"], abs=1e-9)
+    assert [(c["index"], c["correspondences"]) for c in got["candidates"]] == \
+        [(c["index"], c["correspondences"]) for c in expected["candidates"]]
+
+
+# -- replay -> serve -> listen ----------------------------------------------------------------
+
+
+@pytest.mark.parametrize("transport", ["tcp", "ipc"])
+def test_streamed_answers_equal_the_localizer_run_directly(transport, day_map, robotcar, night_expected, procs,
+                                                           tmp_path):
+    frames, results = endpoints(transport, tmp_path)
+    client = Collector(results, topics=("result",))  # the Python client API, in this process
+    try:
+        procs.start("serve", serve(day_map, frames, results, "lossless", "--wait-listeners", "2"))
+        jsonl = tmp_path / "listen.jsonl"
+        procs.start("listen", lostx_command("listen", results, "--jsonl", str(jsonl), "--count", "10", "--quiet"))
+        procs.start("replay", replay_cmd(robotcar / "night", frames, "--as-fast-as-possible"))
+        assert procs.processes["replay"].wait(120) == 0
+        assert procs.processes["listen"].wait(30) == 0
+        wait_for(lambda: len(client.results) == 10, 10, "the Python client's 10 results")
+    finally:
+        client.stop()
+    assert "10 answered" in procs.log("replay")
+    from_cli = read_jsonl(jsonl)
+    assert [r["frame_id"] for r in from_cli] == list(range(10))
+    for got, expected in zip(from_cli, night_expected):
+        same_answer(got, expected)
+    for got, expected in zip(client.results, night_expected):
+        same_answer(got.to_dict(), expected)
+    # The streamed matches are the ones the method finds (a sanity check on the data, not the wire).
+    assert sum(r["match_index"] == r["frame_id"] for r in from_cli) >= 4
+
+
+def test_live_mode_answers_the_newest_frame_and_counts_the_dropped(day_map, robotcar, procs, tmp_path):
+    frames, results = endpoints("ipc", tmp_path)
+    listener = Collector(results)
+    try:
+        procs.start("serve", serve(day_map, frames, results, "live", "--wait-listeners", "1"))
+        with FramePublisher(frames) as publisher:
+            sent = replay(folder_traverse(robotcar / "night"), publisher, Pace("unlimited"), progress=False, wait=60)
+        assert sent.mode == "live" and sent.frames == 10
+        wait_for(lambda: 9 in listener.ids(), 60, "the answer to the last frame")
+        assert procs.stop("serve") == 0
+        wait_for(lambda: listener.final is not None, 10, "the final stats")
+    finally:
+        listener.stop()
+    ids, final = listener.ids(), listener.final
+    assert ids == sorted(set(ids)) and ids[-1] == 9
+    # All ten frames leave within a few ms; the localizer takes ~100 ms each: most must be skipped.
+    assert len(ids) < 10
+    assert final.answered == len(ids)
+    assert final.dropped == final.received - final.answered > 0
+    # Frames the producer could not even send (its queue full) arrive nowhere: the service sees the gaps.
+    assert final.received + final.missing == 10 and final.missing == sent.dropped
+
+
+def test_lossless_nordland_every_frame_once_in_order_with_a_slow_listener(thumb_map, nordland, procs, tmp_path):
+    """3576 winter frames against the summer map. One listener stalls after its first result until the
+    service reports answers piling up for it, then goes on slowly; nothing may be lost or reordered."""
+    frames, results = endpoints("ipc", tmp_path)
+    config = tmp_path / "stream.toml"
+    config.write_text("[stream]\nresult_hwm = 10\n")
+    blocked = threading.Event()
+
+    window = StreamConfig().window
+
+    class Watch(Collector):
+        def run(self) -> None:
+            # Sets `blocked` once the stats show the producer's whole window answered and waiting for a
+            # listener: the service is holding the producer back (without XPUB_NODROP it never waits).
+            while not self._halt.is_set():
+                message = self.listener.receive(0.1)
+                if message is not None and message.queued_results >= window:
+                    blocked.set()
+                    self.stats.append(message)
+            self.listener.close()
+
+    watch = Watch(results, topics=("stats",))
+    slow = Collector(results, topics=("result",), gate=blocked, delay=lambda n: 0.001, hwm=1, rcvbuf=4096)
+    start = time.monotonic()
+    try:
+        procs.start("serve", serve(thumb_map, frames, results, "lossless", "--wait-listeners", "2",
+                                   "--config", str(config)))
+        jsonl = tmp_path / "listen.jsonl"
+        procs.start("listen", lostx_command("listen", results, "--jsonl", str(jsonl), "--count",
+                                            str(WINTER_FRAMES), "--quiet"))
+        procs.start("replay", replay_cmd(nordland / "winter", frames, "--as-fast-as-possible"))
+        assert procs.processes["replay"].wait(400) == 0
+        assert procs.processes["listen"].wait(30) == 0
+        wait_for(lambda: len(slow.results) == WINTER_FRAMES, 60, "the slow listener's last result")
+        elapsed = time.monotonic() - start
+        assert procs.stop("serve") == 0
+    finally:
+        slow.stop()
+        watch.stop()
+    assert blocked.is_set() and not slow.gate_timed_out, "the slow listener never held the service back"
+    everything = list(range(WINTER_FRAMES))
+    assert [r["frame_id"] for r in read_jsonl(jsonl)] == everything
+    assert slow.ids() == everything
+    assert f"{WINTER_FRAMES} answered" in procs.log("replay")
+    assert "0 dropped, 0 missing, 0 errors" in procs.log("serve")
+    print(f"lossless Nordland: {WINTER_FRAMES} frames in {elapsed:.1f} s")
+
+
+# -- a socket never trusts its peer ------------------------------------------------------------
+
+
+def _small_frame(frame_id: int, **fields) -> dict:
+    image = (np.arange(48 * 64 * 3) % 251).astype(np.uint8).reshape(48, 64, 3)
+    message = msgpack.unpackb(wire.encode_frame(Frame(frame_id, image, camera="front")))
+    message.update(fields)
+    return message
+
+
+def fuzz_cases(rng: np.random.Generator, max_bytes: int) -> list[tuple[list[bytes], str | None, int | None]]:
+    """Bad messages: (parts, expected code or None for "any code", expected frame id)."""
+    cases: list[tuple[list[bytes], str | None, int | None]] = []
+    base = msgpack.packb(_small_frame(1))
+    for cut in rng.integers(0, len(base), 200):
+        cases.append(([base[:cut]], "malformed", None))
+    for n in rng.integers(1, 20, 50):
+        cases.append(([base + rng.bytes(int(n))], "malformed", None))
+    for n in rng.integers(1, 200, 150):
+        cases.append(([rng.bytes(int(n))], None, None))  # random bytes: any refusal will do
+    for value in (None, True, 7, "frame", [1, 2], 2.5):
+        cases.append(([msgpack.packb(value)], "not_a_map", None))
+    big = max_bytes + 1
+    for size in np.linspace(big, 2 * max_bytes - 100, 8).astype(int):
+        cases.append(([msgpack.packb({"v": 1, "type": "frame", "id": 9, "image": b"\0" * int(size)})],
+                      "too_large", None))
+    for header in (b"\xc6\xff\xff\xff\xf0", b"\xdb\xff\xff\xff\xf0", b"\xdd\xff\xff\xff\xf0", b"\xdf\xff\xff\xff\xf0"):
+        for _ in range(10):
+            cases.append(([b"\x82\xa1v\x01\xa5image" + header + rng.bytes(int(rng.integers(0, 64)))],
+                          "malformed", None))
+    for depth in (2000, 10_000, 100_000):
+        cases.append(([b"\x81\xa8metadata" + b"\x91" * depth + b"\xc0"], "malformed", None))
+    cases.append(([msgpack.packb({"v": 1, "type": "frame", "id": 5, "x": msgpack.ExtType(1, b"abc")})],
+                  "malformed", None))
+    cases.append(([base, b"second part"], "multipart", None))
+    cases.append(([b"", base], "multipart", None))
+    mutations: list[tuple[dict, str]] = [
+        ({"v": 0}, "bad_version"), ({"v": 2}, "bad_version"), ({"v": 99}, "bad_version"), ({"v": -1}, "bad_version"),
+        ({"v": "1"}, "bad_version"), ({"v": 1.0}, "bad_version"), ({"v": None}, "bad_version"),
+        ({"v": [1]}, "bad_version"),
+        ({"type": "result"}, "unknown_type"), ({"type": "ack"}, "unknown_type"), ({"type": ""}, "unknown_type"),
+        ({"type": 5}, "bad_type"), ({"type": None}, "bad_type"),
+        ({"camera": "left"}, "bad_value"), ({"camera": 0}, "bad_type"), ({"camera": None}, "bad_type"),
+        ({"encoding": "gif"}, "bad_value"), ({"encoding": 1}, "bad_type"),
+        ({"image": "pixels"}, "bad_type"), ({"image": None}, "bad_type"), ({"image": [1, 2]}, "bad_type"),
+        ({"image": b"\0" * 10}, "bad_image"),
+        ({"shape": "48x64"}, "bad_type"), ({"shape": [48]}, "bad_value"), ({"shape": [48, 64, 3, 1]}, "bad_value"),
+        ({"shape": [48, 64, 4]}, "bad_value"), ({"shape": [-48, 64, 3]}, "bad_value"),
+        ({"shape": [48, 64.0, 3]}, "bad_value"), ({"shape": [100_000, 100_000, 3]}, "image_too_large"),
+        ({"dtype": "float32"}, "bad_value"), ({"dtype": 8}, "bad_type"),
+        ({"timestamp": "now"}, "bad_type"), ({"timestamp": [1.0]}, "bad_type"), ({"timestamp": True}, "bad_type"),
+        ({"timestamp": float("nan")}, "bad_type"), ({"timestamp": float("inf")}, "bad_type"),
+        ({"position": [1.0]}, "bad_value"), ({"position": ["a", "b"]}, "bad_value"),
+        ({"position": "here"}, "bad_type"), ({"position": {"x": 1}}, "bad_type"),
+        ({"name": 5}, "bad_type"), ({"name": b"raw"}, "bad_type"), ({"name": "n" * 1000}, "bad_value"),
+        ({"stream": 3}, "bad_type"), ({"metadata": [1]}, "bad_type"), ({"metadata": "x"}, "bad_type"),
+        ({"metadata": {"blob": b"x"}}, "bad_type"), ({"metadata": {"a": [[[[[1]]]]]}}, "bad_value"),
+        ({"colour": "red"}, "unknown_field"), ({"extra": None}, "unknown_field"),
+        ({"encoding": "png", "image": b"\x89PNG\r\n\x1a\n" + b"\0\0\0\rIHDR" + b"\x00\x01\x86\xa0" * 2 + b"\x08\x02\0\0\0"},
+         "image_too_large"),
+        ({"encoding": "png", "image": b"\x89PNG\r\n\x1a\n\0\0\0\rIHDR\0\0\0\x40\0\0\0\x30\x08\x02\0\0\0" + b"\0" * 50},
+         "bad_image"),  # a plausible header and a corrupt body: refused by the decoder in the worker
+        ({"encoding": "jpeg", "image": b"\xff\xd8\xff\xe0\x00\x10JFIF"}, "bad_image"),
+        ({"image": b"\0" * 12, "shape": [2, 2, 3]}, "localizer_failed"),  # decodes, but too small to localize
+    ]
+    frame_id = 1000
+    while len(cases) < 1100:
+        for change, code in mutations:
+            frame_id += 1
+            message = _small_frame(frame_id)
+            message.update(change)
+            cases.append(([msgpack.packb(message)], code, frame_id))
+    for field in ("v", "type", "camera", "encoding", "image", "shape", "dtype"):
+        message = _small_frame(7)
+        del message[field]
+        cases.append(([msgpack.packb(message)], "missing_field", 7))
+    for bad_id in (-1, 2**64 - 1, 1.5, "7", True, None, b"7"):
+        cases.append(([msgpack.packb(_small_frame(0, id=bad_id))], "bad_type", None))
+    return cases
+
+
+def test_fuzz_the_service_answers_every_bad_message_and_stays_up(day_map, robotcar, night_expected, procs,
+                                                                 tmp_path):
+    max_bytes = 3 * 1024 * 1024  # a raw 1024x640 frame (1.97 MB) fits
+    frames, results = endpoints("ipc", tmp_path)
+    cases = fuzz_cases(np.random.default_rng(20240611), max_bytes)
+    assert len(cases) >= 1000
+    listener = Collector(results)
+    context = zmq.Context()
+    dealer = context.socket(zmq.DEALER)
+    dealer.setsockopt(zmq.LINGER, 0)
+    try:
+        procs.start("serve", serve(day_map, frames, results, "lossless", "--max-message-bytes", str(max_bytes)))
+        dealer.connect(frames)
+        dealer.send(wire.encode_hello())  # a lossless service is ready once a listener has subscribed
+        assert dealer.poll(60_000) and isinstance(wire.decode_reply(dealer.recv(), Limits()), Ready)
+        replies = []
+        for parts, code, frame_id in cases:
+            dealer.send_multipart(parts)
+            assert dealer.poll(10_000), f"no answer to a bad message (expected {code})"
+            reply = wire.decode_reply(dealer.recv(), Limits())
+            assert isinstance(reply, ErrorMessage), reply
+            assert code is None or reply.code == code, (code, reply)
+            assert reply.frame_id == frame_id, (code, frame_id, reply)
+            replies.append(reply)
+        assert procs.processes["serve"].poll() is None, "the service died"
+        # Now one good frame: answered, and exactly as the Localizer answers it in this process.
+        night0 = folder_traverse(robotcar / "night").frame(0)
+        dealer.send(wire.encode_frame(night0, "raw"))
+        assert dealer.poll(60_000)
+        ack = wire.decode_reply(dealer.recv(), Limits())
+        assert isinstance(ack, wire.Ack) and ack.frame_id == 0
+        wait_for(lambda: listener.results, 10, "the good frame's result")
+        same_answer(listener.results[0].to_dict(), night_expected[0])
+        assert procs.stop("serve") == 0
+        wait_for(lambda: listener.final is not None, 10, "the final stats")
+    finally:
+        dealer.close()
+        context.term()
+        listener.stop()
+    final = listener.final
+    assert final.errors == len(cases) and final.answered == 1
+    by_code: dict[str, int] = {}
+    for reply in replies:
+        by_code[reply.code] = by_code.get(reply.code, 0) + 1
+    assert final.errors_by_code == by_code
+    # Listeners heard of every refusal too (frame ids included), in the order they happened.
+    assert [(e.code, e.frame_id) for e in listener.errors] == [(r.code, r.frame_id) for r in replies]
+
+
+def test_a_message_over_twice_the_limit_is_cut_off_by_the_transport(thumb_map, procs, tmp_path):
+    frames, results = endpoints("tcp", tmp_path)
+    procs.start("serve", serve(thumb_map, frames, results, "live", "--max-message-bytes", "65536"))
+    context = zmq.Context()
+    dealer = context.socket(zmq.DEALER)
+    dealer.setsockopt(zmq.LINGER, 0)
+    try:
+        dealer.connect(frames)
+        dealer.send(wire.encode_hello())
+        assert dealer.poll(30_000), "the service did not start"
+        assert isinstance(wire.decode_reply(dealer.recv(), Limits()), Ready)
+        dealer.send(b"\x85" + b"\0" * (3 * 65536))  # announces 192 KiB: libzmq drops the connection
+        assert not dealer.poll(1500), "a message over the transport limit was answered"
+        dealer.send(wire.encode_hello())  # the DEALER has reconnected by itself
+        assert dealer.poll(10_000)
+        assert isinstance(wire.decode_reply(dealer.recv(), Limits()), Ready)
+        assert procs.processes["serve"].poll() is None
+    finally:
+        dealer.close()
+        context.term()
+
+
+# -- security ----------------------------------------------------------------------------------
+
+
+def test_curve_only_clients_with_known_keys_get_anything(thumb_map, nordland, procs, tmp_path):
+    for folder, name in (("server", "server"), ("clients", "alice"), ("others", "mallory")):
+        subprocess.run(lostx_command("keys", str(tmp_path / folder), "--name", name), check=True,
+                       capture_output=True, timeout=60)
+    assert oct((tmp_path / "clients" / "alice.key_secret").stat().st_mode & 0o777) == "0o600"
+    server_key = tmp_path / "server" / "server.key"
+    alice = ClientKeys(server_key, tmp_path / "clients" / "alice.key_secret")
+    mallory = ClientKeys(server_key, tmp_path / "others" / "mallory.key_secret")
+    frames, results = endpoints("tcp", tmp_path)
+    listeners = {"alice": Collector(results, keys=alice), "plain": Collector(results),
+                 "mallory": Collector(results, keys=mallory)}
+    try:
+        procs.start("serve", serve(thumb_map, frames, results, "lossless",
+                                   "--curve-secret", str(tmp_path / "server" / "server.key_secret"),
+                                   "--curve-clients", str(tmp_path / "clients")))
+        for keys in (None, mallory):
+            with FramePublisher(frames, keys=keys) as intruder:
+                with pytest.raises(StreamError, match="no service answered"):
+                    intruder.wait_ready(1.5)
+                intruder.send(folder_traverse(nordland / "winter").frame(0))  # sent into nothing
+        with FramePublisher(frames, keys=alice) as publisher:
+            publisher.wait_ready(30)
+            for frame in list(folder_traverse(nordland / "winter"))[:5]:
+                publisher.send(frame, timeout=30)
+            assert publisher.flush(30)
+        wait_for(lambda: len(listeners["alice"].results) == 5, 10, "alice's results")
+        assert procs.stop("serve") == 0
+        wait_for(lambda: listeners["alice"].final is not None, 10, "the final stats")
+    finally:
+        for listener in listeners.values():
+            listener.stop()
+    assert listeners["alice"].final.received == 5
+    for name in ("plain", "mallory"):
+        got = listeners[name]
+        assert not got.results and not got.errors and not got.stats, f"{name} received something"
+
+
+def test_the_service_binds_loopback_unless_told_otherwise(thumb_map, procs, tmp_path):
+    from lostx.cli import build_parser
+    from lostx.options import config_from_args, stream_config_from_args
+
+    args = build_parser().parse_args(["serve", "--map", str(thumb_map.path)])
+    stream = stream_config_from_args(args, config_from_args(args)).stream
+    assert stream.frames == "tcp://127.0.0.1:5555" and stream.results == "tcp://127.0.0.1:5556"
+    port = free_port()
+    refused = subprocess.run(serve(thumb_map, f"tcp://0.0.0.0:{port}", f"tcp://127.0.0.1:{free_port()}", "live"),
+                             capture_output=True, text=True, timeout=60)
+    assert refused.returncode == 2
+    assert f"refusing to bind tcp://0.0.0.0:{port} (not loopback) without CurveZMQ keys" in refused.stderr
+
+
+# -- lifecycle ---------------------------------------------------------------------------------
+
+
+def test_sigterm_finishes_the_frame_in_hand_flushes_and_exits_0(day_map, robotcar, procs, tmp_path):
+    frames, results = endpoints("ipc", tmp_path)
+    listener = Collector(results)
+    try:
+        serve_process = procs.start("serve", serve(day_map, frames, results, "lossless"))
+        procs.start("replay", replay_cmd(robotcar / "night", frames, "--as-fast-as-possible"))
+        wait_for(lambda: listener.results, 60, "a first result")
+        time.sleep(0.04)  # the next frame is in the worker's hands now (a step takes ~100 ms)
+        before = len(listener.results)
+        serve_process.send_signal(signal.SIGTERM)
+        assert serve_process.wait(30) == 0
+        wait_for(lambda: listener.final is not None, 10, "the final stats")
+    finally:
+        listener.stop()
+    final, ids = listener.final, listener.ids()
+    assert len(ids) > before, "the frame in hand at SIGTERM was not answered"
+    assert final.answered == len(ids) < 10 and ids == list(range(len(ids)))
+    log = procs.log("serve")
+    assert re.search(rf"SIGTERM: last answered frame {ids[-1]}, stopping after {len(ids)} answers; "
+                     r"\d+ queued frame\(s\) left unanswered", log), log
+
+
+def test_producer_and_listener_start_first_and_survive_a_service_restart(thumb_map, nordland_subset, procs,
+                                                                         tmp_path):
+    frames, results = endpoints("tcp", tmp_path)
+    listener = Collector(results, topics=("result",))
+    try:
+        procs.start("replay", replay_cmd(nordland_subset, frames, "--rate", "150"))
+        time.sleep(1.0)  # both wait for a service that is not there yet
+        first = procs.start("serve", serve(thumb_map, frames, results, "lossless"))
+        wait_for(lambda: len(listener.results) >= 100, 60, "100 results from the first service")
+        first.kill()  # a crash: no flushing, no goodbye
+        first.wait(10)
+        procs.start("serve-again", serve(thumb_map, frames, results, "lossless"))
+        assert procs.processes["replay"].wait(120) == 0
+    finally:
+        listener.stop()
+    ids = listener.ids()
+    assert set(ids) == set(range(300)), "frames were lost across the restart"
+    assert len(ids) - 300 <= StreamConfig().window, "more duplicates than frames in flight"
+    sessions = list(dict.fromkeys(r.session for r in listener.results))
+    assert len(sessions) == 2
+    for session in sessions:
+        mine = [r.frame_id for r in listener.results if r.session == session]
+        assert mine == sorted(mine)
+    assert "300 answered" in procs.log("replay") and "restarted 1 time" in procs.log("replay")
+
+
+def test_sinks_get_every_frame_and_estimate_and_a_failing_sink_is_not_fatal(thumb_map, nordland, tmp_path):
+    seen: list[tuple[int, tuple, int, bool]] = []
+
+    class Keep:
+        closed = False
+
+        def __call__(self, frame, estimate):
+            seen.append((frame.id, frame.image.shape, estimate.match_index, estimate.evidence is not None))
+
+        def close(self):
+            Keep.closed = True
+
+    def broken(frame, estimate):
+        raise RuntimeError("this sink always fails")
+
+    frames, results = endpoints("ipc", tmp_path)
+    config = dataclasses.replace(StreamConfig(), frames=frames, results=results, mode="lossless")
+    logs: list[str] = []
+    service = LocalizerService(Localizer(thumb_map), config, sinks=[broken, Keep()], log=logs.append)
+    listener = Collector(results)
+    with service:
+        thread = threading.Thread(target=service.run, daemon=True)
+        thread.start()
+        try:
+            with FramePublisher(frames) as publisher:
+                publisher.wait_ready(30)
+                for frame in list(folder_traverse(nordland / "winter"))[:20]:
+                    publisher.send(frame, timeout=30)
+                assert publisher.flush(30)
+            wait_for(lambda: len(listener.results) == 20, 10, "20 results")
+        finally:
+            service.stop("test over")
+            thread.join(30)
+            listener.stop()
+    assert not thread.is_alive()
+    assert [s[0] for s in seen] == list(range(20))
+    assert all(shape == (32, 64, 3) and has_evidence for _, shape, _, has_evidence in seen)
+    assert [s[2] for s in seen] == [r.match_index for r in listener.results]
+    assert Keep.closed
+    assert listener.final.errors_by_code == {"sink_failed": 20} and listener.final.errors == 0
+    assert sum("this sink always fails" in line for line in logs) == 1  # in full once, then counted
+
+
+# -- the producer side -------------------------------------------------------------------------
+
+
+class FakeService(threading.Thread):
+    """A ROUTER that says it is a lossless service, keeps every frame message it gets and acks it."""
+
+    def __init__(self, endpoint: str) -> None:
+        super().__init__(daemon=True)
+        self.context = zmq.Context()
+        self.socket = self.context.socket(zmq.ROUTER)
+        self.socket.bind(endpoint)
+        self.frames: list[wire.FrameMessage] = []
+        self.done = threading.Event()
+        self.start()
+
+    def run(self) -> None:
+        ready = wire.encode_ready(Ready("fake", "lossless", 8, 16 << 20, 1 << 24))
+        while not self.done.is_set():
+            if not self.socket.poll(50):
+                continue
+            identity, data = self.socket.recv_multipart()
+            message = wire.decode_request(data, Limits())
+            if isinstance(message, wire.Hello):
+                self.socket.send_multipart([identity, ready])
+            else:
+                self.frames.append(message)
+                self.socket.send_multipart([identity, wire.encode_ack(wire.Ack("fake", message.id))])
+        self.socket.close(linger=0)
+        self.context.term()
+
+
+def _replay_into_fake(source, tmp_path: Path, name: str, **kwargs) -> list[wire.FrameMessage]:
+    fake = FakeService(f"ipc://{tmp_path}/{name}")
+    try:
+        with FramePublisher(f"ipc://{tmp_path}/{name}", encoding="png") as publisher:
+            replay(source, publisher, Pace("unlimited"), progress=False, wait=10, **kwargs)
+    finally:
+        fake.done.set()
+        fake.join(5)
+    return fake.frames
+
+
+def test_replay_is_deterministic_and_loops_with_fresh_ids_and_streams(nordland_subset, tmp_path):
+    source = folder_traverse(nordland_subset)
+    source.files = source.files[:20]
+    runs = [_replay_into_fake(source, tmp_path, f"run{i}") for i in range(2)]
+    for frames in runs:
+        assert [m.id for m in frames] == list(range(20))
+        assert len({m.stream for m in frames}) == 1
+    first, second = runs
+    assert [(m.id, m.name, m.camera, m.image) for m in first] == [(m.id, m.name, m.camera, m.image) for m in second]
+    assert np.array_equal(first[7].to_frame().image, source.frame(7).image)
+    sent: list[int] = []
+    looped = _replay_into_fake(source, tmp_path, "loop", loop=True, should_stop=lambda: len(sent) >= 45 or
+                               sent.append(0) is not None)
+    assert [m.id for m in looped] == list(range(45))
+    assert [m.metadata["lap"] for m in looped] == [0] * 20 + [1] * 20 + [2] * 5
+    assert [m.metadata["index"] for m in looped] == list(range(20)) * 2 + list(range(5))
+    assert len({m.stream for m in looped}) == 3  # each lap starts the service's localizer afresh
+
+
+def test_pacing_keeps_the_schedule_without_bursting():
+    clock = [0.0]
+    sleeps: list[float] = []
+
+    def sleep(seconds: float) -> None:
+        sleeps.append(round(seconds, 6))
+        clock[0] += seconds
+
+    frames = [Frame(i, np.zeros((16, 16, 3), np.uint8), timestamp=100.0 + [0, 0.5, 0.6, 1.6][i]) for i in range(4)]
+
+    class Source(list):
+        pass
+
+    source = Source(frames)
+    assert [p.frame.id for p in paced(source, Pace("rate", 4.0), clock=lambda: clock[0], sleep=sleep)] == [0, 1, 2, 3]
+    assert sleeps == [0.25, 0.25, 0.25]
+    sleeps.clear()
+    list(paced(source, Pace("realtime"), clock=lambda: clock[0], sleep=sleep))
+    assert sleeps == [0.5, 0.1, 1.0]
+    sleeps.clear()
+    late = []
+    for item in paced(source, Pace("rate", 10.0), clock=lambda: clock[0], sleep=sleep):
+        late.append(item.frame.id)
+        if item.frame.id == 0:
+            clock[0] += 5.0  # held back 5 s by a lossless service
+    assert sleeps == [0.1, 0.1]  # frame 1 goes at once, then the rate holds: no burst to catch up
+    assert list(paced(source, Pace("unlimited"), clock=lambda: clock[0], sleep=sleep)) and sleeps == [0.1, 0.1]
+
+
+def test_a_listener_skips_what_it_cannot_read(tmp_path):
+    context = zmq.Context()
+    publisher = context.socket(zmq.XPUB)
+    publisher.bind(f"ipc://{tmp_path}/results")
+    try:
+        with Listener(f"ipc://{tmp_path}/results") as listener:
+            assert publisher.poll(5000) and publisher.recv()[0] == 1  # a subscription
+            summary = {"frame_id": 4, "timestamp": None, "state": "localized", "match_index": 3, "match_name": "a",
+                       "position": None, "confidence": 0.5, "score": 0.1, "single_match_index": 3, "candidates": [],
+                       "sequence_score": None, "speed": None, "window": 0, "warming_up": False, "opposite": False,
+                       "latency_ms": {}}
+            time.sleep(0.2)
+            publisher.send_multipart([b"result", b"\xc1garbage"])
+            publisher.send_multipart([b"result", msgpack.packb({"v": 1, "type": "result", **summary,
+                                                                "match_index": "three"})])
+            publisher.send_multipart([b"result", b"x", b"three parts"])
+            publisher.send_multipart([b"result", wire.encode_result(summary, "s")])
+            got = listener.receive(5)
+            assert isinstance(got, Result) and got.frame_id == 4 and got.match_index == 3
+            assert listener.bad_messages == 3
+    finally:
+        publisher.close(linger=0)
+        context.term()
+
+
+# -- the demo ----------------------------------------------------------------------------------
+
+
+def _children(pid: int) -> list[int]:
+    out = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                stat = (entry / "stat").read_text()
+            except OSError:
+                continue
+            if int(stat.rsplit(")", 1)[1].split()[1]) == pid:
+                out.append(int(entry.name))
+    return out
+
+
+def _alive(pid: int) -> bool:
+    try:
+        return (Path("/proc") / str(pid) / "stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+@pytest.fixture(scope="module")
+def demo_workdir(tmp_path_factory) -> Path:
+    return tmp_path_factory.mktemp("demo")
+
+
+def test_demo_runs_the_whole_loop(demo_workdir, robotcar):
+    done = subprocess.run(lostx_command("demo", "--workdir", str(demo_workdir), "--data", str(robotcar.parent),
+                                        "--rate", "3"), capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    rows = [line for line in done.stdout.splitlines() if line.strip().endswith(("exact", "+-1", "wrong"))]
+    summary = re.search(r"night -> day, streamed: (\d+)/(\d+) exact, (\d+)/(\d+) within one frame", done.stdout)
+    assert summary and int(summary.group(2)) == len(rows) >= 5, done.stdout
+    assert "the authors' LoST-X on the same frames: 6 exact, 8 within one" in done.stdout
+
+
+def test_demo_stops_every_process_it_started_on_ctrl_c(demo_workdir, robotcar):
+    demo = subprocess.Popen(lostx_command("demo", "--workdir", str(demo_workdir), "--data", str(robotcar.parent),
+                                          "--rate", "1"), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        children: list[int] = []
+        for line in demo.stdout:
+            if "query" in line:  # the service and the replay are running now
+                children = _children(demo.pid)
+                break
+        assert len(children) == 2, children
+        demo.send_signal(signal.SIGINT)
+        assert demo.wait(30) == 130
+        wait_for(lambda: not any(_alive(pid) for pid in children), 10, "the demo's children to exit")
+    finally:
+        if demo.poll() is None:
+            demo.kill()
+            demo.wait()
+
+
+def test_children_stop_when_their_parent_is_killed(tmp_path):
+    """A parent that dies without cleaning up (SIGKILL, a crash) still leaves no service behind."""
+    script = (
+        "import os, sys, time\n"
+        "from lostx.stream.processes import ProcessGroup, lostx_command\n"
+        f"child = ProcessGroup().start('listen', lostx_command('listen', 'ipc://{tmp_path}/results', '--quiet'))\n"
+        "print(child.pid, flush=True)\n"
+        "time.sleep(float(sys.argv[1]))\n"
+        "os._exit(0)  # no cleanup at all\n"
+    )
+    parent = subprocess.Popen([sys.executable, "-c", script, "6"], stdout=subprocess.PIPE, text=True)
+    child = int(parent.stdout.readline())
+    assert parent.wait(60) == 0
+    try:
+        wait_for(lambda: not _alive(child), 10, "the orphaned child to stop")
+    finally:
+        if _alive(child):
+            os.kill(child, signal.SIGKILL)
