@@ -616,9 +616,14 @@ def test_demo_runs_the_whole_loop(demo_workdir, robotcar):
                                         "--rate", "3"), capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
     rows = [line for line in done.stdout.splitlines() if line.strip().endswith(("exact", "+-1", "wrong"))]
-    summary = re.search(r"night -> day, streamed: (\d+)/(\d+) exact, (\d+)/(\d+) within one frame", done.stdout)
-    assert summary and int(summary.group(2)) == len(rows) >= 5, done.stdout
-    assert "the authors' LoST-X on the same frames: 6 exact, 8 within one" in done.stdout
+    answered = re.search(r"night -> day \(answered (\d+) of 10", done.stdout)
+    sequence = re.search(r"sequence filter: +(\d+)/(\d+) exact, (\d+)/(\d+) within one frame; (\d+) localized",
+                         done.stdout)
+    single = re.search(r"single frame: +(\d+)/(\d+) exact, (\d+)/(\d+) within one frame", done.stdout)
+    assert answered and sequence and single, done.stdout
+    assert int(answered.group(1)) == int(sequence.group(2)) == int(single.group(2)) == len(rows) >= 5
+    assert int(sequence.group(3)) == len(rows)  # every answer within one frame of the truth (measured)
+    assert "the authors' LoST-X on the same frames (single frame): 6/10 exact, 8/10 within one frame" in done.stdout
 
 
 def test_demo_stops_every_process_it_started_on_ctrl_c(demo_workdir, robotcar):

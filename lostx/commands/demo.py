@@ -39,6 +39,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("--workdir", type=Path, help="where the demo keeps its map (default ~/.cache/lostx/demo)")
     parser.add_argument("--rebuild", action="store_true", help="rebuild the map even if one is there")
     parser.add_argument("--rate", type=float, default=4.0, help="replay rate of the night frames in Hz (default 4)")
+    parser.add_argument("--window", type=int, default=3,
+                        help="sequence window in frames (default 3: the sample traverse has only 10 frames)")
     add_backbone_options(parser)
     parser.set_defaults(run=run)
 
@@ -104,11 +106,12 @@ def _stream(args: argparse.Namespace, refmap: ReferenceMap, night, tmp: Path) ->
         # The service waits for this listener before it takes frames, so no answer is missed.
         procs.start("serve", lostx_command("serve", "--map", str(refmap.path), "--frames", frames,
                                            "--results", results, "--mode", "live", "--wait-listeners", "1",
-                                           *_backbone_args(args)))
+                                           "--window", str(args.window), *_backbone_args(args)))
         procs.start("replay", lostx_command("replay", str(night.root), "--to", frames, "--rate", str(args.rate),
                                             "--quiet", "--wait", "60"))
         print(f"\nservice on {refmap.path.name}, replaying {len(night)} night frames at {args.rate:g} Hz (live mode)")
-        print(f"\n{'query':>14s}  {'match':>12s}  {'truth':>5s}  {'score':>8s}  {'conf':>5s}  {'corr':>4s}")
+        print(f"\n{'query':>14s}  {'truth':>5s}  {'match':>5s}  {'single':>6s}  {'state':>13s}  {'conf':>5s}  "
+              f"{'corr':>4s}")
         deadline = time.monotonic() + 120
         while last_id not in answers:
             message = listener.receive(0.5)
@@ -138,10 +141,9 @@ def _stream(args: argparse.Namespace, refmap: ReferenceMap, night, tmp: Path) ->
 
 def _row(r: Result, night, refmap: ReferenceMap) -> str:
     corr = r.candidates[0].correspondences if r.candidates else 0
-    score = float("nan") if r.score is None else r.score
-    mark = _mark(r.match_index, r.frame_id)
-    return (f"{night.files[r.frame_id].name:>14s}  {refmap.names[r.match_index]:>12s}  {r.frame_id:>5d}  "
-            f"{score:8.4f}  {r.confidence:5.2f}  {corr:4d}  {mark}")
+    state = "warming up" if r.warming_up else r.state.replace("_", " ")
+    return (f"{night.files[r.frame_id].name:>14s}  {r.frame_id:>5d}  {r.match_index:>5d}  {r.single_match_index:>6d}  "
+            f"{state:>13s}  {r.confidence:5.2f}  {corr:4d}  {_mark(r.match_index, r.frame_id)}")
 
 
 def _mark(match: int, truth: int) -> str:
@@ -149,14 +151,20 @@ def _mark(match: int, truth: int) -> str:
 
 
 def _summary(answers: dict[int, Result], n_frames: int, final: Stats | None) -> None:
-    found = np.array([r.match_index for r in answers.values()])
     truth = np.array(list(answers))
-    exact = int((found == truth).sum())
-    near = int((np.abs(found - truth) <= 1).sum())
     n = len(answers)
+
+    def counts(found: np.ndarray) -> str:
+        return f"{int((found == truth).sum())}/{n} exact, {int((np.abs(found - truth) <= 1).sum())}/{n} within one frame"
+
+    sequence = np.array([r.match_index for r in answers.values()])
+    single = np.array([r.single_match_index for r in answers.values()])
+    localized = sum(r.state == "localized" for r in answers.values())
     dropped = f"; {final.dropped} dropped by the live service" if final is not None and final.dropped else ""
-    print(f"\nnight -> day, streamed: {exact}/{n} exact, {near}/{n} within one frame "
-          f"(answered {n} of {n_frames}{dropped}; the authors' LoST-X on the same frames: 6 exact, 8 within one)")
+    print(f"\nnight -> day (answered {n} of {n_frames}{dropped}):")
+    print(f"  sequence filter:  {counts(sequence)}; {localized} localized")
+    print(f"  single frame:     {counts(single)}")
+    print("  the authors' LoST-X on the same frames (single frame): 6/10 exact, 8/10 within one frame")
     if final is not None:
         step = final.latency_ms.get("step", {})
         service = final.latency_ms.get("service", {})
