@@ -84,7 +84,9 @@ class Estimate:
     opposite: bool = False
     """The query camera faced opposite to the map's."""
     latency_ms: dict[str, float] = field(default_factory=dict)
-    """Milliseconds per stage (network, descriptor, search, verify, sequence, tracker, total)."""
+    """Milliseconds per stage: network, descriptor, search, verify; with the sequence filter also
+    costs (the frame's normalised cost for every reference: O(map size), like the search),
+    sequence (the trajectory update: independent of the map size) and tracker; and total."""
     evidence: Evidence | None = None
 
     def summary(self) -> dict[str, Any]:

@@ -109,6 +109,7 @@ class Localizer:
         t0 = time.perf_counter()
         costs = self.hubs(contrast_normalise(result.map_scores, cfg.contrast_window))
         anchors = np.union1d(result.candidates, top_k(costs, cfg.anchors))
+        t_costs = time.perf_counter()
         speeds = self._plausible_speeds()
         seq = self.sequence.update(anchors, costs, speeds)
         runner_up = self.sequence.runner_up(seq.position, cfg.exclusion)
@@ -125,7 +126,8 @@ class Localizer:
                 position, speed = track.position, track.speed
         state = "localized" if trusted and not warming else "not_localized"
         t2 = time.perf_counter()
-        latency["sequence"] = 1e3 * (t1 - t0)
+        latency["costs"] = 1e3 * (t_costs - t0)
+        latency["sequence"] = 1e3 * (t1 - t_costs)
         latency["tracker"] = 1e3 * (t2 - t1)
         index = int(np.clip(np.rint(position), 0, self.map.n_frames - 1))
         estimate = self._estimate(frame, result, opposite, index, state,
