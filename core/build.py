@@ -104,11 +104,12 @@ def build_map(
                 for frame, described, mu in _windowed(_ticking(frames, bar), describer, config.lost.reference_window):
                     writer.add(
                         MapFrame(frame.name, describer.descriptor(described, mu), described.evidence,
-                                 frame.position, frame.timestamp)
+                                 described.appearance, frame.position, frame.timestamp)
                     )
             else:
                 for frame in _ticking(frames, bar):
-                    writer.add(MapFrame(frame.name, describer(frame.image), None, frame.position, frame.timestamp))
+                    writer.add(MapFrame(frame.name, describer(frame.image), position=frame.position,
+                                        timestamp=frame.timestamp))
         finally:
             bar.close()
         if not writer.frames:

@@ -64,6 +64,9 @@ class LostConfig:
 class VerifyConfig:
     """Candidate search and spatial layout verification (paper Sec. III-A/C)."""
 
+    enabled: bool = True
+    """Verify the candidates' spatial layout (LoST-X); ``False`` ranks by the LoST descriptor alone
+    (the paper's "LoST" baseline)."""
     top_k: int = 10
     """Candidates passed from the descriptor search to verification."""
     scoring: Scoring = "eq4-lost"

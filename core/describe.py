@@ -12,7 +12,7 @@ from .classes import ClassGroups
 from .config import LostConfig
 from .errors import InputError
 from .keypoints import KeypointEvidence, frame_evidence
-from .lost import class_means, lost_descriptor, window_means
+from .lost import class_means, gem_pool, lost_descriptor, window_means
 
 
 @dataclass
@@ -25,6 +25,7 @@ class DescribedFrame:
     means: np.ndarray  # (G, D): this frame's own mu_s (Eq. 2)
     present: np.ndarray  # (G,) bool: class s occurs in the frame
     evidence: KeypointEvidence
+    appearance: np.ndarray  # (D,) GeM-pooled features: the appearance baseline
 
 
 class LostDescriber:
@@ -57,6 +58,7 @@ class LostDescriber:
             means=means,
             present=present,
             evidence=frame_evidence(semantic.features, labels.reshape(h, w)),
+            appearance=gem_pool(features),
         )
 
     def descriptor(self, frame: DescribedFrame, means: np.ndarray) -> np.ndarray:

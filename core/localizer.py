@@ -91,12 +91,22 @@ class Localizer:
         result = self.matcher.match(frame.image, opposite=opposite)
         if frame.timestamp is not None:
             self._last_timestamp = frame.timestamp
+        estimate = self.update(frame, result)
+        estimate.latency_ms["total"] = 1e3 * (time.perf_counter() - start)
+        return estimate
+
+    def update(self, frame: Frame, result: MatchResult) -> Estimate:
+        """Advance the sequence filter and tracker with a single-frame result for ``frame``.
+
+        :meth:`step` computes the result with its own matcher; evaluation feeds results of
+        other single-frame methods (or cached ones) through the same sequence stages here.
+        """
+        opposite = frame.camera != self.map.camera
         latency = {k: 1e3 * v for k, v in result.timings.items()}
         if self.config.sequence.enabled:
             estimate = self._sequence_estimate(frame, result, opposite, latency)
         else:
             estimate = self._single_estimate(frame, result, opposite)
-        latency["total"] = 1e3 * (time.perf_counter() - start)
         estimate.latency_ms = latency
         return estimate
 

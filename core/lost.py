@@ -75,6 +75,14 @@ def lost_descriptor(features: np.ndarray, group_probs: np.ndarray, mu: np.ndarra
     return l2_normalise(per_class).reshape(-1).astype(np.float32)
 
 
+def gem_pool(features: np.ndarray, p: float = 3.0) -> np.ndarray:
+    """The appearance baseline on the same network's features: generalised-mean (GeM) pooling of
+    the (D, N) feature map over its N locations, (mean_i x_i^p)^(1/p) per channel, L2-normalised.
+    Features below zero are clamped (GeM is defined on non-negative activations)."""
+    pooled = np.mean(np.maximum(features, 0.0) ** p, axis=1) ** (1.0 / p)
+    return l2_normalise(pooled).astype(np.float32)
+
+
 @dataclass(frozen=True)
 class DescriptorStats:
     """Per-dimension statistics of a set of L2-normalised descriptors (the map's)."""

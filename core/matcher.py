@@ -23,6 +23,25 @@ from .verify import Correspondences, verify
 
 
 @dataclass
+class QueryDescription:
+    """What the matcher needs of a LoST query frame, before any query statistics are applied.
+
+    Computing it is the expensive part (the network); it depends only on the frame
+    (and, with ``query_window > 1``, on the previous frames), so it can be cached.
+    """
+
+    descriptor: np.ndarray
+    """Raw LoST descriptor L (Eq. 1-3), before normalisation."""
+    appearance: np.ndarray
+    """GeM-pooled network features (the appearance baseline)."""
+    evidence: KeypointEvidence
+    labels: np.ndarray
+    """(h, w) grouped semantic labels."""
+    timings: dict[str, float] = field(default_factory=dict)
+    """Seconds: network, descriptor."""
+
+
+@dataclass
 class MatchResult:
     """One query frame's single-frame answer. Candidates are ranked best first by ``scores``."""
 
@@ -118,7 +137,20 @@ class PlaceMatcher:
         image = check_frame(image)
         if isinstance(self.describer, ThumbnailDescriber):
             return self._match_thumbnail(image, opposite)
-        return self._match_lost(image, opposite)
+        return self.match_description(self.describe(image), opposite)
+
+    def describe(self, image: np.ndarray) -> QueryDescription:
+        """Run the network on a LoST query frame (the expensive, cacheable half of :meth:`match`)."""
+        describer = self.describer
+        assert isinstance(describer, LostDescriber)
+        t0 = time.perf_counter()
+        semantic = describer.backbone(check_frame(image))
+        t1 = time.perf_counter()
+        frame = describer.from_semantic(semantic)
+        raw = describer.descriptor(frame, self.means(frame))
+        t2 = time.perf_counter()
+        return QueryDescription(raw, frame.appearance, frame.evidence, frame.labels,
+                                {"network": t1 - t0, "descriptor": t2 - t1})
 
     def _match_thumbnail(self, image: np.ndarray, opposite: bool) -> MatchResult:
         t0 = time.perf_counter()
@@ -137,22 +169,22 @@ class PlaceMatcher:
             map_scores=distances,
         )
 
-    def _match_lost(self, image: np.ndarray, opposite: bool) -> MatchResult:
-        describer = self.describer
-        assert isinstance(describer, LostDescriber)
+    def match_description(self, query: QueryDescription, opposite: bool = False) -> MatchResult:
+        """Normalise (causally), search and verify a described LoST query frame."""
         cfg = self.config.verify
+        self.last_evidence = query.evidence
         t0 = time.perf_counter()
-        semantic = describer.backbone(image)
-        t1 = time.perf_counter()
-        frame = describer.from_semantic(semantic)
-        self.last_evidence = frame.evidence
-        descriptor = self.normaliser(describer.descriptor(frame, self.means(frame)))
-        t2 = time.perf_counter()
+        descriptor = self.normaliser(query.descriptor)
         distances = cosine_distances(descriptor, self.map.descriptors)
         shortlist = top_k(distances, cfg.top_k)
-        t3 = time.perf_counter()
+        t1 = time.perf_counter()
+        timings = {**query.timings, "search": t1 - t0, "verify": 0.0}
+        if not cfg.enabled:
+            ranked = distances[shortlist]
+            return MatchResult(shortlist, ranked, ranked, uniqueness(shortlist, ranked, cfg.uniqueness_exclusion),
+                               query_labels=query.labels, timings=timings, map_scores=distances)
         result = verify(
-            frame.evidence,
+            query.evidence,
             self.map.evidence(shortlist),
             distances[shortlist],
             opposite=opposite,
@@ -160,7 +192,7 @@ class PlaceMatcher:
             density=cfg.density_filter,
         )
         rank = np.lexsort((np.arange(len(shortlist)), result.scores))
-        t4 = time.perf_counter()
+        timings["verify"] = time.perf_counter() - t1
         candidates, scores = shortlist[rank], result.scores[rank]
         return MatchResult(
             candidates=candidates,
@@ -169,8 +201,8 @@ class PlaceMatcher:
             confidence=uniqueness(candidates, scores, cfg.uniqueness_exclusion),
             n_matches=result.n_matches[rank],
             correspondences=[result.correspondences(int(c)) for c in rank],
-            query_labels=frame.labels,
-            timings={"network": t1 - t0, "descriptor": t2 - t1, "search": t3 - t2, "verify": t4 - t3},
+            query_labels=query.labels,
+            timings=timings,
             map_scores=map_scores(distances, shortlist, result.scores, cfg.scoring),
         )
 

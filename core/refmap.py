@@ -7,6 +7,7 @@ A map is a folder::
     descriptors.npy         (N, K) float16 normalised LoST descriptors, or uint8 thumbnails
     stats_mean.npy          (K,) float32  } per-dimension statistics of the raw
     stats_std.npy           (K,) float32  } descriptors, for normalising queries
+    appearance.npy          (N, D) float16 GeM-pooled network features (the appearance baseline)
     keypoints.npy           (N, D) int16   arg-max location per channel, -1 = none
     labels.npy              (N, h*w) uint8 grouped semantic labels
     frame_slots.npy         (N+1,) int64   frame n owns slots frame_slots[n]:frame_slots[n+1]
@@ -59,6 +60,8 @@ class MapFrame:
     descriptor: np.ndarray
     """Raw global descriptor (before normalisation)."""
     evidence: KeypointEvidence | None = None
+    appearance: np.ndarray | None = None
+    """GeM-pooled network features (the appearance baseline), for LoST maps."""
     position: tuple[float, float] | None = None
     timestamp: float | None = None
 
@@ -148,6 +151,8 @@ class MapWriter:
             arrays["stats_mean"] = stats.mean
             arrays["stats_std"] = stats.std
             arrays.update(_pack_evidence([f.evidence for f in self.frames], self.backbone))  # type: ignore[misc]
+            if all(f.appearance is not None for f in self.frames):
+                arrays["appearance"] = np.stack([f.appearance for f in self.frames]).astype(np.float16)
         else:
             arrays["descriptors"] = np.stack([f.descriptor for f in self.frames]).astype(np.uint8)
         positions = [f.position for f in self.frames]
@@ -244,6 +249,9 @@ class ReferenceMap:
         self.names: list[str] = list(manifest["frames"])
         self.descriptors = np.asarray(arrays["descriptors"], dtype=np.float32 if self.kind == "lost" else np.uint8)
         self.positions: np.ndarray | None = arrays.get("positions")
+        self.appearance: np.ndarray | None = (
+            np.asarray(arrays["appearance"], dtype=np.float32) if "appearance" in arrays else None
+        )
         self.timestamps: np.ndarray | None = arrays.get("timestamps")
         self.backbone: dict[str, Any] | None = manifest.get("backbone")
         if self.kind == "lost":
