@@ -1,0 +1,55 @@
+"""Where the recording goes: a spawned viewer, a running one, an .rrd file, a served web viewer.
+
+Any combination may be asked for at once; they are attached to one recording
+stream as Rerun sinks, so each frame is encoded once.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from urllib.parse import quote
+
+import rerun as rr
+import rerun.blueprint as rrb
+
+from .target import ViewerOutput
+
+
+@dataclass
+class OpenedOutput:
+    """What :func:`open_output` attached, and what to tell the user."""
+
+    messages: list[str] = field(default_factory=list)
+    web_url: str | None = None
+
+
+def open_output(recording: rr.RecordingStream, output: ViewerOutput, blueprint: rrb.Blueprint) -> OpenedOutput:
+    """Attach ``output``'s destinations to ``recording``, each with ``blueprint`` as the default layout."""
+    opened = OpenedOutput()
+    sinks: list[rr.GrpcSink | rr.GrpcServerSink | rr.FileSink] = []
+    if output.rrd is not None:
+        Path(output.rrd).parent.mkdir(parents=True, exist_ok=True)
+        sinks.append(rr.FileSink(str(output.rrd)))
+        opened.messages.append(f"recording to {output.rrd} (open it with: rerun {output.rrd})")
+    if output.connect is not None:
+        sinks.append(rr.GrpcSink(output.connect))
+        opened.messages.append(f"streaming to the viewer at {output.connect}")
+    if output.spawn:
+        # Start the viewer with its memory limit, then connect like any other client.
+        rr.spawn(port=output.spawn_port, connect=False, memory_limit=output.memory_limit, recording=recording)
+        url = f"rerun+http://127.0.0.1:{output.spawn_port}/proxy"
+        if url != output.connect:
+            sinks.append(rr.GrpcSink(url))
+        opened.messages.append(f"spawned the viewer (memory limit {output.memory_limit})")
+    server: rr.GrpcServerSink | None = None
+    if output.web:
+        server = rr.GrpcServerSink(port=output.grpc_port, server_memory_limit=output.memory_limit)
+        sinks.append(server)
+    if sinks:
+        recording.set_sinks(*sinks, default_blueprint=blueprint)
+    if server is not None:
+        rr.serve_web_viewer(web_port=output.web_port, open_browser=False, connect_to=server.uri)
+        opened.web_url = f"http://localhost:{output.web_port}/?url={quote(server.uri, safe='')}"
+        opened.messages.append(f"web viewer: {opened.web_url} (server buffer {output.memory_limit})")
+    return opened
