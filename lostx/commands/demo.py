@@ -9,13 +9,13 @@ import numpy as np
 
 from lostx.core.config import Config
 from lostx.core.errors import InputError, MapError
-from lostx.core.matcher import PlaceMatcher
+from lostx.core.localizer import Localizer
 from lostx.core.backbone import load_backbone
 from lostx.core.build import build_map
 from lostx.core.describe import LostDescriber
 from lostx.core.paths import cache_dir, data_dir
 from lostx.core.refmap import ReferenceMap
-from lostx.options import add_backbone_options, config_from_args
+from lostx.options import add_backbone_options, add_viewer_options, close_viewer, config_from_args, viewer_sink_from_args
 from lostx.replay.folder import folder_traverse
 
 
@@ -25,6 +25,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("--workdir", type=Path, help="where the demo keeps its map (default ~/.cache/lostx/demo)")
     parser.add_argument("--rebuild", action="store_true", help="rebuild the map even if one is there")
     add_backbone_options(parser)
+    add_viewer_options(parser)
     parser.set_defaults(run=run)
 
 
@@ -54,16 +55,22 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"demo data not found: {data} should hold day/ and night/ (pass --data or set LOSTX_DATA)")
     workdir = args.workdir or cache_dir() / "demo"
     refmap = demo_map(data / "day", workdir / f"robotcar-day-{config.backbone.name}", config, args.rebuild)
-    matcher = PlaceMatcher(refmap, config)
+    localizer = Localizer(refmap, config)
+    sink = viewer_sink_from_args(args, refmap)
     night = folder_traverse(data / "night")
     print(f"\n{'query':>14s}  {'match':>12s}  {'truth':>5s}  {'score':>8s}  {'conf':>5s}  {'corr':>4s}")
     found = []
-    for frame in night:
-        result = matcher.match(frame.image)
-        found.append(result.best)
-        mark = "exact" if result.best == frame.id else ("+-1" if abs(result.best - frame.id) == 1 else "wrong")
-        print(f"{frame.name:>14s}  {refmap.names[result.best]:>12s}  {frame.id:>5d}  {result.score:8.4f}  "
-              f"{result.confidence:5.2f}  {int(result.n_matches[0]):4d}  {mark}")
+    try:
+        for frame in night:
+            est = localizer.step(frame)
+            if sink is not None:
+                sink(frame, est)
+            found.append(est.match_index)
+            mark = "exact" if est.match_index == frame.id else ("+-1" if abs(est.match_index - frame.id) == 1 else "wrong")
+            print(f"{frame.name:>14s}  {est.match_name:>12s}  {frame.id:>5d}  {est.score:8.4f}  "
+                  f"{est.confidence:5.2f}  {est.candidates[0].correspondences:4d}  {mark}")
+    finally:
+        close_viewer(sink)
     truth = np.arange(len(found))
     exact = int((np.asarray(found) == truth).sum())
     near = int((np.abs(np.asarray(found) - truth) <= 1).sum())

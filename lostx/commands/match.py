@@ -12,9 +12,10 @@ import numpy as np
 from tqdm import tqdm
 
 from lostx.core.errors import InputError
-from lostx.core.matcher import MatchResult, PlaceMatcher
+from lostx.core.estimate import Estimate
+from lostx.core.localizer import Localizer
 from lostx.core.refmap import ReferenceMap
-from lostx.options import add_config_options, config_from_args
+from lostx.options import add_config_options, add_viewer_options, close_viewer, config_from_args, viewer_sink_from_args
 from lostx.replay.folder import folder_traverse
 
 COLUMNS = ["query_index", "query_file", "match_index", "match_file", "score", "confidence", "candidates",
@@ -33,6 +34,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                         help="check that the map holds this descriptor (default: whatever it holds)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     add_config_options(parser)
+    add_viewer_options(parser)
     parser.set_defaults(run=run)
 
 
@@ -41,31 +43,39 @@ def run(args: argparse.Namespace) -> int:
     refmap = ReferenceMap.open(args.map)
     if args.descriptor and args.descriptor != refmap.kind:
         raise InputError(f"{args.map} is a {refmap.kind} map, not {args.descriptor}")
-    queries = folder_traverse(args.queries, mirror=args.mirror)
-    matcher = PlaceMatcher(refmap, config)
+    camera = {"front": "rear", "rear": "front"}[refmap.camera] if args.opposite else refmap.camera
+    queries = folder_traverse(args.queries, camera=camera, mirror=args.mirror)  # type: ignore[arg-type]
+    localizer = Localizer(refmap, config)
+    sink = viewer_sink_from_args(args, refmap)
     start = time.perf_counter()
-    rows, results = [], []
-    for frame in tqdm(queries, total=len(queries), desc="matching", unit="frame", disable=args.quiet, leave=False):
-        result = matcher.match(frame.image, opposite=args.opposite)
-        results.append(result)
-        rows.append(csv_row(frame.id, frame.name, result, refmap))
+    rows, estimates = [], []
+    try:
+        for frame in tqdm(queries, total=len(queries), desc="matching", unit="frame", disable=args.quiet, leave=False):
+            estimate = localizer.step(frame)
+            if sink is not None:
+                sink(frame, estimate)
+            estimates.append(estimate)
+            rows.append(csv_row(frame.id, frame.name, estimate, refmap))
+    finally:
+        close_viewer(sink)
     elapsed = time.perf_counter() - start
     write_csv(args.out, COLUMNS, rows)
-    print(summary_line(results, elapsed, args.out))
+    print(summary_line(estimates, elapsed, args.out))
     return 0
 
 
-def csv_row(index: int, name: str, result: MatchResult, refmap: ReferenceMap) -> dict[str, object]:
+def csv_row(index: int, name: str, estimate: Estimate, refmap: ReferenceMap) -> dict[str, object]:
+    best = estimate.candidates[0]
     return {
         "query_index": index,
         "query_file": name,
-        "match_index": result.best,
-        "match_file": refmap.names[result.best],
-        "score": f"{result.score:.6g}",
-        "confidence": f"{result.confidence:.4f}",
-        "candidates": " ".join(str(int(c)) for c in result.candidates),
-        "distance": f"{float(result.distances[0]):.6g}",
-        "correspondences": int(result.n_matches[0]) if result.n_matches is not None else "",
+        "match_index": estimate.match_index,
+        "match_file": refmap.names[estimate.match_index],
+        "score": f"{estimate.score:.6g}",
+        "confidence": f"{estimate.confidence:.4f}",
+        "candidates": " ".join(str(c.index) for c in estimate.candidates),
+        "distance": f"{best.distance:.6g}",
+        "correspondences": best.correspondences if refmap.kind == "lost" else "",
     }
 
 
@@ -79,10 +89,9 @@ def write_csv(path: Path, columns: list[str], rows: list[dict[str, object]]) -> 
     tmp.replace(path)
 
 
-def summary_line(results: list[MatchResult], elapsed: float, out: Path) -> str:
-    stages = {k: 1e3 * float(np.mean([r.timings.get(k, 0.0) for r in results])) for k in results[0].timings}
+def summary_line(estimates: list[Estimate], elapsed: float, out: Path) -> str:
+    stages = {k: float(np.mean([e.latency_ms.get(k, 0.0) for e in estimates]))
+              for k in estimates[0].latency_ms if k != "total"}
     detail = ", ".join(f"{k} {v:.1f}" for k, v in stages.items())
-    return (f"matched {len(results)} queries in {elapsed:.1f} s ({1e3 * elapsed / len(results):.0f} ms per frame; "
+    return (f"matched {len(estimates)} queries in {elapsed:.1f} s ({1e3 * elapsed / len(estimates):.0f} ms per frame; "
             f"{detail} ms); wrote {out}")
-
-
