@@ -29,7 +29,7 @@ from lostx.viz.rate import RateGate  # noqa: E402
 from lostx.viz.sink import RerunSink, SinkSettings  # noqa: E402
 from lostx.viz.target import ViewerOutput  # noqa: E402
 
-SYNC = SinkSettings(heavy_hz=None, background=False, strict=True)
+SYNC = SinkSettings(heavy_hz=None, background=False, strict=True, reference_disk_cache=None)
 """Every frame's images and lines, logged on the caller's thread, errors raised: exact counts to check."""
 T0 = 1_400_000_000.0
 
@@ -111,8 +111,7 @@ def test_every_entity_has_one_time_point_per_frame(front):
     frames = [f.id for f, _ in seen]
     assert frames == list(range(10))
     per_frame = {
-        e.QUERY_IMAGE: "EncodedImage:blob", e.REFERENCE_IMAGE: "EncodedImage:blob",
-        e.QUERY_LABELS: "SegmentationImage:buffer", e.REFERENCE_LABELS: "SegmentationImage:buffer",
+        e.QUERY_IMAGE: "EncodedImage:blob", e.QUERY_LABELS: "SegmentationImage:buffer",
         e.LINES: "LineStrips2D:strips", e.CAPTIONS: "Points2D:labels",
         e.CONFIDENCE: "Scalars:scalars", e.MATCH_INDEX: "Scalars:scalars", e.SINGLE_MATCH_INDEX: "Scalars:scalars",
         e.CORRESPONDENCES: "Scalars:scalars", e.STATUS: "TextDocument:text",
@@ -120,6 +119,11 @@ def test_every_entity_has_one_time_point_per_frame(front):
     }
     for entity, component in per_frame.items():
         assert rec.column(entity, component).frames == frames, entity
+    # The reference image and its labels are logged when the match moves to another reference.
+    matches = [est.match_index for _, est in seen]
+    moved = [f for f in frames if f == 0 or matches[f] != matches[f - 1]]
+    assert rec.column(e.REFERENCE_IMAGE, "EncodedImage:blob").frames == moved
+    assert rec.column(e.REFERENCE_LABELS, "SegmentationImage:buffer").frames == moved
     # The frame timestamps are a second timeline, in nanoseconds.
     stamps = [t for f, t in sorted(rec.times[e.CONFIDENCE], key=lambda r: r[0]) if f >= 0]  # -1: static styles
     assert np.allclose(stamps, [(T0 + 0.1 * i) * 1e9 for i in frames], rtol=0, atol=1e3)
@@ -176,10 +180,14 @@ def test_images_are_jpegs_and_label_maps_carry_the_class_names(front, day_map):
         # The logged image is the frame, shrunk: compare at the same size (JPEG changes pixel values a little).
         assert np.abs(np.asarray(image, np.float64) - frame.image[::2, ::2]).mean() < 12
         assert len(blob[0]) < 80_000
-    ref_blob = rec.column(e.REFERENCE_IMAGE, "EncodedImage:blob").values[4][0]
-    assert Image.open(io.BytesIO(bytes(ref_blob))).size == (512, 320)
-    labels = rec.column(e.REFERENCE_LABELS, "SegmentationImage:buffer").values
-    for logged, (_, est) in zip(labels, seen):
+    references = rec.column(e.REFERENCE_IMAGE, "EncodedImage:blob")
+    labels = rec.column(e.REFERENCE_LABELS, "SegmentationImage:buffer")
+    for frame, blob, logged in zip(references.frames, references.values, labels.values):
+        est = seen[frame][1]
+        image = Image.open(io.BytesIO(bytes(blob[0])))
+        assert image.size == (512, 320)
+        day = np.asarray(Image.open(day_map.image_path(est.match_index)).reduce(2), np.float64)
+        assert np.abs(np.asarray(image, np.float64) - day).mean() < 12
         assert np.array_equal(np.asarray(logged[0], np.uint8).reshape(day_map.grid), day_map.labels(est.match_index))
     query_labels = rec.column(e.QUERY_LABELS, "SegmentationImage:buffer").values
     assert np.array_equal(np.asarray(query_labels[0][0], np.uint8).reshape(day_map.grid), seen[0][1].evidence.query_labels)
@@ -261,6 +269,9 @@ def test_the_sequence_window_is_drawn_when_the_estimate_has_one(day_map, robotca
     lines = rec.column(e.LINES, "LineStrips2D:strips").values
     assert len(lines[0]) == len(windows[0].evidence.correspondences[2].label) > 0
     assert len(lines[1]) == 0
+    # Both frames show reference 2: its image is logged once, and stays on screen.
+    assert rec.column(e.REFERENCE_IMAGE, "EncodedImage:blob").frames == [0]
+    assert rec.column(e.QUERY_IMAGE, "EncodedImage:blob").frames == [0, 1]
 
 
 def test_a_frame_without_a_clock_gets_no_time(day_map, robotcar, tmp_path):
@@ -275,6 +286,37 @@ def test_a_frame_without_a_clock_gets_no_time(day_map, robotcar, tmp_path):
     times = {f: t for f, t in Recording(out).times[e.CONFIDENCE] if f >= 0}
     assert times[1] is None
     assert np.allclose([times[0], times[2]], [T0 * 1e9, (T0 + 0.2) * 1e9], rtol=0, atol=1e3)
+
+
+def test_reference_images_are_read_once_across_runs(day_map, robotcar, tmp_path):
+    settings = dataclasses.replace(SYNC, reference_disk_cache=tmp_path / "thumbs", reference_cache=1)
+    first, second = tmp_path / "first.rrd", tmp_path / "second.rrd"
+    seen = replay(day_map, robotcar / "night", first, settings=settings, frames=4)
+    matches = {est.match_index for _, est in seen}
+    cached = sorted((tmp_path / "thumbs").glob("*/*.jpg"))
+    assert sorted(int(p.stem) for p in cached) == sorted(matches)
+    sink = RerunSink(day_map, ViewerOutput(rrd=second), settings)
+    for frame, est in seen:
+        sink(frame, est)
+    sink.close()
+    assert sink.match_view.references.decoded == 0  # every reference came from the disk cache
+    one, two = (Recording(p).column(e.REFERENCE_IMAGE, "EncodedImage:blob") for p in (first, second))
+    assert one.frames == two.frames and one.values == two.values
+    # Another build of the map (another manifest), or another display size or quality, has its own images.
+    import json
+    import shutil
+
+    from lostx.viz.images import ReferenceImages
+
+    rebuilt = tmp_path / "rebuilt"
+    shutil.copytree(day_map.path, rebuilt)
+    manifest = json.loads((rebuilt / "manifest.json").read_text())
+    manifest["created"] = "another build"
+    (rebuilt / "manifest.json").write_text(json.dumps(manifest))
+    folders = {ReferenceImages(m, width, quality, disk=tmp_path / "thumbs").folder
+               for m, width, quality in ((day_map, 640, 80), (ReferenceMap.open(rebuilt), 640, 80),
+                                         (day_map, 320, 80), (day_map, 640, 70))}
+    assert len(folders) == 4
 
 
 # -- pacing and the background thread ---------------------------------------------------------------
@@ -296,7 +338,7 @@ def test_heavy_entities_follow_the_rate_the_rest_every_frame(day_map, robotcar, 
     replay(day_map, robotcar / "night", out, settings=settings, frames=6, clock=FakeClock(0.05))  # 20 fps
     rec = Recording(out)
     assert rec.column(e.CONFIDENCE, "Scalars:scalars").frames == [0, 1, 2, 3, 4, 5]
-    for entity in (e.QUERY_IMAGE, e.REFERENCE_IMAGE, e.LINES, e.QUERY_LABELS):
+    for entity in (e.QUERY_IMAGE, e.LINES, e.QUERY_LABELS):
         component = {e.LINES: "LineStrips2D:strips", e.QUERY_LABELS: "SegmentationImage:buffer"}.get(
             entity, "EncodedImage:blob")
         assert rec.column(entity, component).frames == [0, 2, 4], entity
@@ -315,7 +357,7 @@ def test_background_thread_logs_every_frame_it_is_given_time_for(day_map, robotc
     localizer = Localizer(day_map, Config())
     frames = list(folder_traverse(robotcar / "night"))[:4]
     out = tmp_path / "bg.rrd"
-    sink = RerunSink(day_map, ViewerOutput(rrd=out), SinkSettings(heavy_hz=None, background=True, strict=True))
+    sink = RerunSink(day_map, ViewerOutput(rrd=out), dataclasses.replace(SYNC, background=True))
     for frame in frames:
         sink(frame, localizer.step(frame))
         sink.flush()  # as if the next frame took longer than the logging
@@ -352,8 +394,10 @@ def test_a_failing_view_does_not_stop_the_localizer(day_map, robotcar, tmp_path)
 # -- the command line -----------------------------------------------------------------------------------
 
 
-def test_lostx_match_records_what_it_writes_to_the_csv(day_map, robotcar, tmp_path):
+def test_lostx_match_records_what_it_writes_to_the_csv(day_map, robotcar, tmp_path, monkeypatch):
     import csv
+
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
 
     from lostx.cli import main
 
@@ -372,8 +416,10 @@ def test_lostx_match_records_what_it_writes_to_the_csv(day_map, robotcar, tmp_pa
         assert len(strips) == int(rows[frame]["correspondences"])
 
 
-def test_viewer_options_make_a_sink_only_when_asked(day_map, tmp_path):
+def test_viewer_options_make_a_sink_only_when_asked(day_map, tmp_path, monkeypatch):
     import argparse
+
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
 
     from lostx.options import add_viewer_options, viewer_sink_from_args
 

@@ -10,6 +10,8 @@ semantic class from the annotation context on ``match``.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import rerun as rr
 
@@ -28,15 +30,17 @@ class MatchLogger:
     """Logs one frame's match space. Keeps the encoded-reference cache and the current panel layout."""
 
     def __init__(self, rec: rr.RecordingStream, refmap: ReferenceMap, image_width: int | None, jpeg_quality: int,
-                 label_opacity: float, reference_cache: int) -> None:
+                 label_opacity: float, reference_cache: int, reference_disk_cache: Path | None = None) -> None:
         self.rec = rec
         self.map = refmap
         self.image_width = image_width
         self.jpeg_quality = jpeg_quality
         self.label_opacity = label_opacity
-        self.references = ReferenceImages(refmap, image_width, jpeg_quality, reference_cache)
+        self.references = ReferenceImages(refmap, image_width, jpeg_quality, reference_cache, reference_disk_cache)
         self.grid: tuple[int, int] | None = getattr(refmap, "grid", None)
         self._panels: tuple[Panel, Panel] | None = None
+        self._shown: int | None = None
+        """The reference index whose image and labels were logged last."""
 
     def log(self, frame: Frame, est: Estimate) -> None:
         rec = self.rec
@@ -49,7 +53,14 @@ class MatchLogger:
         q_panel, r_panel = panels
 
         rec.log(e.QUERY_IMAGE, _encoded(query))
-        rec.log(e.REFERENCE_IMAGE, _encoded(reference) if reference is not None else rr.Clear(recursive=False))
+        if est.match_index != self._shown:
+            # A reference stays on screen until the match moves on: logged again it would
+            # only cost memory (the viewer shows the latest image at any time).
+            self._shown = est.match_index
+            rec.log(e.REFERENCE_IMAGE, _encoded(reference) if reference is not None else rr.Clear(recursive=False))
+            if self.map.kind == "lost":
+                rec.log(e.REFERENCE_LABELS, rr.SegmentationImage(
+                    np.ascontiguousarray(self.map.labels(est.match_index)), opacity=self.label_opacity))
         query_colour = colours.MIRRORED_OUTLINE if est.opposite else colours.QUERY_OUTLINE
         rec.log(e.QUERY_OUTLINE, _outline(q_panel, query_colour))
         rec.log(e.REFERENCE_OUTLINE, _outline(r_panel, colours.REFERENCE_OUTLINE))
@@ -63,9 +74,6 @@ class MatchLogger:
         if ev is not None and ev.query_labels is not None:
             labels = ev.query_labels[:, ::-1] if est.opposite else ev.query_labels
             rec.log(e.QUERY_LABELS, rr.SegmentationImage(np.ascontiguousarray(labels), opacity=self.label_opacity))
-        if self.map.kind == "lost":
-            rec.log(e.REFERENCE_LABELS, rr.SegmentationImage(np.ascontiguousarray(self.map.labels(est.match_index)),
-                                                             opacity=self.label_opacity))
         grid = (ev.grid if ev is not None else None) or self.grid
         corr = ev.correspondences.get(est.match_index) if ev is not None else None
         if corr is not None and grid is not None:

@@ -6,12 +6,15 @@ stream as Rerun sinks, so each frame is encoded once.
 
 from __future__ import annotations
 
+import socket
 from dataclasses import dataclass, field
 from pathlib import Path
 from urllib.parse import quote
 
 import rerun as rr
 import rerun.blueprint as rrb
+
+from lostx.core.errors import InputError
 
 from .target import ViewerOutput
 
@@ -44,12 +47,27 @@ def open_output(recording: rr.RecordingStream, output: ViewerOutput, blueprint: 
         opened.messages.append(f"spawned the viewer (memory limit {output.memory_limit})")
     server: rr.GrpcServerSink | None = None
     if output.web:
+        # Rerun reports a taken port only in its log; say so before anything is started.
+        for port in (output.grpc_port, output.web_port):
+            _require_free_port(port)
         server = rr.GrpcServerSink(port=output.grpc_port, server_memory_limit=output.memory_limit)
         sinks.append(server)
     if sinks:
         recording.set_sinks(*sinks, default_blueprint=blueprint)
     if server is not None:
-        rr.serve_web_viewer(web_port=output.web_port, open_browser=False, connect_to=server.uri)
-        opened.web_url = f"http://localhost:{output.web_port}/?url={quote(server.uri, safe='')}"
+        # The server listens on every interface; a browser on this machine reaches it at 127.0.0.1
+        # (browsers refuse 0.0.0.0). From elsewhere, replace 127.0.0.1 with this machine's address.
+        uri = f"rerun+http://127.0.0.1:{output.grpc_port}/proxy"
+        rr.serve_web_viewer(web_port=output.web_port, open_browser=False, connect_to=uri)
+        opened.web_url = f"http://localhost:{output.web_port}/?url={quote(uri, safe='')}"
         opened.messages.append(f"web viewer: {opened.web_url} (server buffer {output.memory_limit})")
     return opened
+
+
+def _require_free_port(port: int) -> None:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
+        probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            probe.bind(("0.0.0.0", port))
+        except OSError:
+            raise InputError(f"port {port} is in use (another viewer or lostx --web?); stop it first") from None

@@ -22,7 +22,8 @@ import logging
 import math
 import time
 import uuid
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Callable
 
 import numpy as np
@@ -30,6 +31,7 @@ import rerun as rr
 
 from lostx.core.estimate import Estimate
 from lostx.core.frame import Frame
+from lostx.core.paths import cache_dir
 from lostx.core.refmap import ReferenceMap
 
 from . import colours
@@ -66,6 +68,8 @@ class SinkSettings:
     """The sequence window image shows the reference frames within this many of the match."""
     reference_cache: int = 64
     """Encoded reference images kept in memory."""
+    reference_disk_cache: Path | None = field(default_factory=lambda: cache_dir() / "viewer")
+    """Where encoded reference images are kept between runs (about 30 kB each); None: not kept."""
     strict: bool = False
     """Raise logging errors instead of counting them (a viewer must never stop the localizer)."""
 
@@ -94,7 +98,7 @@ class RerunSink:
         self.settings = s = settings or SinkSettings()
         self.rec = recording or rr.RecordingStream(application_id, recording_id=uuid.uuid4())
         self.match_view = MatchLogger(self.rec, refmap, s.image_width, s.jpeg_quality, s.label_opacity,
-                                      s.reference_cache)
+                                      s.reference_cache, s.reference_disk_cache)
         self.blueprint = build_blueprint(with_map=refmap.positions is not None,
                                          image_size=self.match_view.references.display_size())
         self.opened = open_output(self.rec, output, self.blueprint) if output is not None else OpenedOutput()
@@ -183,10 +187,12 @@ class RerunSink:
             (e.SEQUENCE_SCORE, "sequence score (lower is better)", colours.SEQUENCE_SCORE),
             (e.SPEED, "speed", colours.SPEED),
             (e.MATCH_INDEX, "match", colours.MATCH_INDEX),
-            (e.SINGLE_MATCH_INDEX, "single-frame match", colours.SINGLE_MATCH_INDEX),
             (e.CORRESPONDENCES, "correspondences", colours.CORRESPONDENCES),
         ):
             rec.log(path, rr.SeriesLines(colors=[colour], names=[name], widths=[2.0]), static=True)
+        # Dots, not a line: where the single-frame answer agrees with the answer, both stay visible.
+        rec.log(e.SINGLE_MATCH_INDEX, rr.SeriesPoints(colors=[colours.SINGLE_MATCH_INDEX], names=["single-frame match"],
+                                                      markers=["circle"], marker_sizes=[4.0]), static=True)
         if self.map.positions is not None:
             rec.log(e.MAP_ROUTE, rr.LineStrips2D([map_xy(self.map.positions)], colors=[colours.ROUTE],
                                                  radii=rr.Radius.ui_points(1.5)), static=True)
