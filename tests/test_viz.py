@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import io
+import os
 from pathlib import Path
 
 import numpy as np
@@ -432,6 +433,14 @@ def test_viewer_options_make_a_sink_only_when_asked(day_map, tmp_path, monkeypat
     sink.close()
     assert (tmp_path / "x.rrd").stat().st_size > 0
     assert parser.parse_args(["--connect"]).connect == "rerun+http://127.0.0.1:9876/proxy"
+
+
+def test_the_viewer_is_found_without_an_activated_environment(monkeypatch):
+    from lostx.viz.output import viewer_executable
+
+    monkeypatch.setenv("PATH", "")
+    found = viewer_executable()
+    assert found is not None and Path(found).is_file() and os.access(found, os.X_OK)
 
 
 # -- geometry -------------------------------------------------------------------------------------------

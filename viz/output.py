@@ -6,7 +6,9 @@ stream as Rerun sinks, so each frame is encoded once.
 
 from __future__ import annotations
 
+import shutil
 import socket
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from urllib.parse import quote
@@ -40,7 +42,8 @@ def open_output(recording: rr.RecordingStream, output: ViewerOutput, blueprint: 
         opened.messages.append(f"streaming to the viewer at {output.connect}")
     if output.spawn:
         # Start the viewer with its memory limit, then connect like any other client.
-        rr.spawn(port=output.spawn_port, connect=False, memory_limit=output.memory_limit, recording=recording)
+        rr.spawn(port=output.spawn_port, connect=False, memory_limit=output.memory_limit,
+                 executable_path=viewer_executable(), recording=recording)
         url = f"rerun+http://127.0.0.1:{output.spawn_port}/proxy"
         if url != output.connect:
             sinks.append(rr.GrpcSink(url))
@@ -71,3 +74,24 @@ def _require_free_port(port: int) -> None:
             probe.bind(("0.0.0.0", port))
         except OSError:
             raise InputError(f"port {port} is in use (another viewer or lostx --web?); stop it first") from None
+
+
+def viewer_executable() -> str | None:
+    """The ``rerun`` viewer: on PATH, else the one the rerun-sdk wheel ships in ``rerun_cli``.
+
+    A virtual environment's ``bin`` is on PATH only when it is activated; ``.venv/bin/lostx
+    --viewer`` run without activating it should still find the viewer installed beside it.
+    """
+    found = shutil.which("rerun")
+    if found:
+        return found
+    try:
+        import rerun_cli
+    except ImportError:
+        return None
+    folder = Path(rerun_cli.__file__).parent
+    suffix = ".exe" if sys.platform.startswith("win") else ""
+    for candidate in (folder / "Rerun.app" / "Contents" / "MacOS" / "Rerun", folder / f"rerun{suffix}"):
+        if candidate.is_file():
+            return str(candidate)
+    return None
