@@ -81,7 +81,12 @@ class _HeavyJob:
 
 
 class RerunSink:
-    """Logs each (frame, estimate) of one stream to Rerun. Call :meth:`close` at the end."""
+    """Logs each (frame, estimate) of one stream to Rerun. Call :meth:`close` at the end.
+
+    The background thread reads the frame's image and the estimate's evidence after the
+    call returns: hand over arrays that are not overwritten afterwards (the localizer's
+    estimates and decoded frames never are; a camera driver's reused buffer would be).
+    """
 
     def __init__(
         self,
@@ -162,7 +167,13 @@ class RerunSink:
 
     @property
     def heavy_dropped(self) -> int:
+        """Frames whose images and lines were skipped because the background thread was still busy."""
         return self.worker.dropped if self.worker is not None else 0
+
+    @property
+    def heavy_failed(self) -> int:
+        """Frames whose images and lines failed to log on the background thread (see the log)."""
+        return self.worker.failed if self.worker is not None else 0
 
     # -- what is logged --------------------------------------------------------------------------
 
