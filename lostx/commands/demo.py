@@ -25,7 +25,7 @@ from lostx.core.build import build_map
 from lostx.core.describe import LostDescriber
 from lostx.core.paths import cache_dir, data_dir
 from lostx.core.refmap import ReferenceMap
-from lostx.options import add_backbone_options, config_from_args
+from lostx.options import add_backbone_options, add_viewer_options, config_from_args, viewer_args
 from lostx.replay.folder import folder_traverse
 from lostx.stream.client import Listener
 from lostx.stream.errors import StreamError
@@ -42,6 +42,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("--window", type=int, default=3,
                         help="sequence window in frames (default 3: the sample traverse has only 10 frames)")
     add_backbone_options(parser)
+    add_viewer_options(parser)
     parser.set_defaults(run=run)
 
 
@@ -106,7 +107,8 @@ def _stream(args: argparse.Namespace, refmap: ReferenceMap, night, tmp: Path) ->
         # The service waits for this listener before it takes frames, so no answer is missed.
         procs.start("serve", lostx_command("serve", "--map", str(refmap.path), "--frames", frames,
                                            "--results", results, "--mode", "live", "--wait-listeners", "1",
-                                           "--window", str(args.window), *_backbone_args(args)))
+                                           "--window", str(args.window), *_backbone_args(args),
+                                           *viewer_args(args)))
         procs.start("replay", lostx_command("replay", str(night.root), "--to", frames, "--rate", str(args.rate),
                                             "--quiet", "--wait", "60"))
         print(f"\nservice on {refmap.path.name}, replaying {len(night)} night frames at {args.rate:g} Hz (live mode)")

@@ -15,7 +15,7 @@ from lostx.core.errors import InputError
 from lostx.core.estimate import Estimate
 from lostx.core.localizer import Localizer
 from lostx.core.refmap import ReferenceMap
-from lostx.options import add_config_options, config_from_args
+from lostx.options import add_config_options, add_viewer_options, close_viewer, config_from_args, viewer_sink_from_args
 from lostx.replay.folder import folder_traverse
 
 COLUMNS = ["query_index", "query_file", "match_index", "match_file", "score", "confidence", "candidates",
@@ -37,6 +37,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                         help="check that the map holds this descriptor (default: whatever it holds)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     add_config_options(parser)
+    add_viewer_options(parser)
     parser.set_defaults(run=run)
 
 
@@ -46,15 +47,21 @@ def run(args: argparse.Namespace) -> int:
     refmap = ReferenceMap.open(args.map)
     if args.descriptor and args.descriptor != refmap.kind:
         raise InputError(f"{args.map} is a {refmap.kind} map, not {args.descriptor}")
-    camera = ("rear" if refmap.camera == "front" else "front") if args.opposite else refmap.camera
-    queries = folder_traverse(args.queries, camera=camera, mirror=args.mirror)
+    camera = {"front": "rear", "rear": "front"}[refmap.camera] if args.opposite else refmap.camera
+    queries = folder_traverse(args.queries, camera=camera, mirror=args.mirror)  # type: ignore[arg-type]
     localizer = Localizer(refmap, config)
+    sink = viewer_sink_from_args(args, refmap)
     start = time.perf_counter()
     rows, estimates = [], []
-    for frame in tqdm(queries, total=len(queries), desc="matching", unit="frame", disable=args.quiet, leave=False):
-        estimate = localizer.step(frame)
-        estimates.append(estimate)
-        rows.append(csv_row(frame.name, estimate, refmap, args.sequence))
+    try:
+        for frame in tqdm(queries, total=len(queries), desc="matching", unit="frame", disable=args.quiet, leave=False):
+            estimate = localizer.step(frame)
+            if sink is not None:
+                sink(frame, estimate)
+            estimates.append(estimate)
+            rows.append(csv_row(frame.name, estimate, refmap, args.sequence))
+    finally:
+        close_viewer(sink)
     elapsed = time.perf_counter() - start
     write_csv(args.out, COLUMNS + (SEQUENCE_COLUMNS if args.sequence else []), rows)
     print(summary_line(estimates, elapsed, args.out))

@@ -9,7 +9,14 @@ from pathlib import Path
 from lostx.core.errors import InputError
 from lostx.core.localizer import Localizer
 from lostx.core.refmap import ReferenceMap
-from lostx.options import add_config_options, add_stream_options, config_from_args, stream_config_from_args
+from lostx.options import (
+    add_config_options,
+    add_stream_options,
+    add_viewer_options,
+    config_from_args,
+    stream_config_from_args,
+    viewer_sink_from_args,
+)
 from lostx.sinks import resolve_sink
 from lostx.stream.service import LocalizerService
 from lostx.stream.sinks import JsonlSink
@@ -32,6 +39,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     sec.add_argument("--insecure", action="store_true",
                      help="allow binding a non-loopback address without CurveZMQ (trusted networks only)")
     add_config_options(parser)
+    add_viewer_options(parser)
     parser.set_defaults(run=run)
 
 
@@ -49,6 +57,9 @@ def run(args: argparse.Namespace) -> int:
         sinks = [resolve_sink(spec) for spec in args.sink]
         if args.jsonl:
             sinks.append(JsonlSink(args.jsonl))
+        viewer = viewer_sink_from_args(args, refmap)
+        if viewer is not None:
+            sinks.append(viewer)
         service = LocalizerService(localizer, config.stream, sinks=sinks, keys=keys, insecure=args.insecure)
         stop.attach(service)
         with service:

@@ -1,0 +1,478 @@
+"""The live Rerun view: record real replays to .rrd files and read them back with Rerun's own reader.
+
+The replays are the ten RobotCar night frames localized against the day map,
+through the real Localizer; the recordings are read with ``rerun.chunk.RrdReader``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import io
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+rr = pytest.importorskip("rerun")
+from rerun.chunk import RrdReader  # noqa: E402
+
+from lostx.core.config import Config  # noqa: E402
+from lostx.core.estimate import Estimate  # noqa: E402
+from lostx.core.frame import Frame  # noqa: E402
+from lostx.core.localizer import Localizer  # noqa: E402
+from lostx.core.refmap import ReferenceMap  # noqa: E402
+from lostx.replay.folder import folder_traverse  # noqa: E402
+from lostx.viz import entities as e  # noqa: E402
+from lostx.viz.geometry import GAP, Panel, colourise, display_size, sequence_band, trajectory  # noqa: E402
+from lostx.viz.rate import RateGate  # noqa: E402
+from lostx.viz.sink import RerunSink, SinkSettings  # noqa: E402
+from lostx.viz.target import ViewerOutput  # noqa: E402
+
+SYNC = SinkSettings(heavy_hz=None, background=False, strict=True, reference_disk_cache=None)
+"""Every frame's images and lines, logged on the caller's thread, errors raised: exact counts to check."""
+T0 = 1_400_000_000.0
+
+
+# -- reading a recording back ----------------------------------------------------------------------
+
+
+@dataclasses.dataclass
+class Column:
+    frames: list[int]
+    values: list
+
+
+class Recording:
+    """The rows of one .rrd, per entity and component, in frame order (static rows under frame -1)."""
+
+    def __init__(self, path: Path) -> None:
+        reader = RrdReader(path)
+        self.blueprints = reader.blueprints()
+        self.rows: dict[str, dict[str, list[tuple[int, object]]]] = {}
+        self.times: dict[str, list[tuple[int, int]]] = {}
+        for chunk in reader.stream():
+            batch = chunk.to_record_batch()
+            names = batch.schema.names
+            frames = batch.column("frame").to_pylist() if "frame" in names else [-1] * batch.num_rows
+            entity = chunk.entity_path.lstrip("/")
+            for name in names:
+                if ":" not in name:
+                    continue
+                for frame, value in zip(frames, batch.column(name).to_pylist()):
+                    self.rows.setdefault(entity, {}).setdefault(name, []).append((frame, value))
+            stamps = batch.column("time").cast("int64").to_pylist() if "time" in names else [None] * batch.num_rows
+            self.times.setdefault(entity, []).extend(zip(frames, stamps))
+
+    def column(self, entity: str, component: str) -> Column:
+        rows = sorted(self.rows[entity][component], key=lambda r: r[0])
+        return Column([f for f, _ in rows], [v for _, v in rows])
+
+    def has(self, entity: str) -> bool:
+        return entity in self.rows
+
+
+# -- replays -----------------------------------------------------------------------------------------
+
+
+def replay(refmap: ReferenceMap, night: Path, out: Path, camera: str = "front", settings: SinkSettings = SYNC,
+           frames: int = 10, positions: np.ndarray | None = None, clock=None) -> list[tuple[Frame, Estimate]]:
+    """Localize the night frames (with timestamps, 0.1 s apart) and log each through a sink into ``out``."""
+    localizer = Localizer(refmap, Config())
+    kwargs = {"clock": clock} if clock is not None else {}
+    sink = RerunSink(refmap, ViewerOutput(rrd=out), settings, **kwargs)
+    seen = []
+    for frame in list(folder_traverse(night, camera=camera))[:frames]:  # type: ignore[arg-type]
+        frame.timestamp = T0 + 0.1 * frame.id
+        if positions is not None:
+            frame.position = tuple(positions[frame.id] + [0.5, -1.0])  # type: ignore[assignment]
+        estimate = localizer.step(frame)
+        sink(frame, estimate)
+        seen.append((frame, estimate))
+    sink.close()
+    return seen
+
+
+@pytest.fixture(scope="module")
+def front(day_map, robotcar, tmp_path_factory):
+    out = tmp_path_factory.mktemp("viz") / "night.rrd"
+    return replay(day_map, robotcar / "night", out), Recording(out)
+
+
+def matched(est: Estimate):
+    return next(c for c in est.candidates if c.index == est.match_index)
+
+
+# -- the recording of a replay -------------------------------------------------------------------------
+
+
+def test_every_entity_has_one_time_point_per_frame(front):
+    seen, rec = front
+    frames = [f.id for f, _ in seen]
+    assert frames == list(range(10))
+    per_frame = {
+        e.QUERY_IMAGE: "EncodedImage:blob", e.QUERY_LABELS: "SegmentationImage:buffer",
+        e.LINES: "LineStrips2D:strips", e.CAPTIONS: "Points2D:labels",
+        e.CONFIDENCE: "Scalars:scalars", e.MATCH_INDEX: "Scalars:scalars", e.SINGLE_MATCH_INDEX: "Scalars:scalars",
+        e.CORRESPONDENCES: "Scalars:scalars", e.STATUS: "TextDocument:text",
+        e.CANDIDATE_SCORES: "BarChart:values", e.CANDIDATE_TABLE: "TextDocument:text",
+    }
+    for entity, component in per_frame.items():
+        assert rec.column(entity, component).frames == frames, entity
+    # The reference image and its labels are logged when the match moves to another reference.
+    matches = [est.match_index for _, est in seen]
+    moved = [f for f in frames if f == 0 or matches[f] != matches[f - 1]]
+    assert rec.column(e.REFERENCE_IMAGE, "EncodedImage:blob").frames == moved
+    assert rec.column(e.REFERENCE_LABELS, "SegmentationImage:buffer").frames == moved
+    # The frame timestamps are a second timeline, in nanoseconds.
+    stamps = [t for f, t in sorted(rec.times[e.CONFIDENCE], key=lambda r: r[0]) if f >= 0]  # -1: static styles
+    assert np.allclose(stamps, [(T0 + 0.1 * i) * 1e9 for i in frames], rtol=0, atol=1e3)
+    # No sequence filter yet (None in every Estimate): nothing is logged for it rather than zeros.
+    assert all(est.sequence_score is None for _, est in seen)
+    assert not rec.has(e.SEQUENCE_SCORE) or "Scalars:scalars" not in rec.rows[e.SEQUENCE_SCORE]
+    assert not rec.has(e.SEQUENCE_WINDOW)
+    # The map has no positions: no map entities.
+    assert not any(entity.startswith("map") for entity in rec.rows)
+    assert rec.blueprints, "the default layout travels in the file"
+
+
+def test_logged_values_equal_the_estimates(front):
+    seen, rec = front
+    estimates = [est for _, est in seen]
+    assert [v[0] for v in rec.column(e.MATCH_INDEX, "Scalars:scalars").values] == [est.match_index for est in estimates]
+    assert [v[0] for v in rec.column(e.SINGLE_MATCH_INDEX, "Scalars:scalars").values] == \
+        [est.single_match_index for est in estimates]
+    assert np.array_equal([v[0] for v in rec.column(e.CONFIDENCE, "Scalars:scalars").values],
+                          [est.confidence for est in estimates])
+    assert [v[0] for v in rec.column(e.CORRESPONDENCES, "Scalars:scalars").values] == \
+        [matched(est).correspondences for est in estimates]
+    bars = rec.column(e.CANDIDATE_SCORES, "BarChart:values").values
+    for bar, est in zip(bars, estimates):
+        assert np.allclose(bar[0]["buffer"], [c.score for c in est.candidates])
+    tables = rec.column(e.CANDIDATE_TABLE, "TextDocument:text").values
+    for table, est in zip(tables, estimates):
+        assert table[0].count("\n") == 1 + len(est.candidates)
+        assert f"| 1 | **{est.candidates[0].index}**" in table[0]
+    assert "confidence" in rec.column(e.STATUS, "TextDocument:text").values[3][0]
+
+
+def test_lines_are_the_estimates_correspondences_coloured_by_class(front, day_map):
+    seen, rec = front
+    strips = rec.column(e.LINES, "LineStrips2D:strips").values
+    classes = rec.column(e.LINES, "LineStrips2D:class_ids").values
+    h, w = day_map.grid
+    for (frame, est), lines, ids in zip(seen, strips, classes):
+        corr = est.evidence.correspondences[est.match_index]
+        assert len(lines) == matched(est).correspondences == len(corr.label) > 20
+        assert ids == [int(v) for v in corr.label]
+        lines = np.asarray(lines)
+        # Query keypoints on the left image (512 px wide), reference keypoints on the right one, at cell centres.
+        assert np.allclose(lines[:, 0, 0], (corr.query_xy[:, 0] + 0.5) * 512 / w)
+        assert np.allclose(lines[:, 0, 1], (corr.query_xy[:, 1] + 0.5) * 320 / h)
+        assert np.allclose(lines[:, 1, 0], 512 + GAP + (corr.ref_xy[:, 0] + 0.5) * 512 / w)
+
+
+def test_images_are_jpegs_and_label_maps_carry_the_class_names(front, day_map):
+    seen, rec = front
+    for blob, (frame, est) in zip(rec.column(e.QUERY_IMAGE, "EncodedImage:blob").values, seen):
+        image = Image.open(io.BytesIO(bytes(blob[0])))
+        assert image.format == "JPEG" and image.size == (512, 320)
+        # The logged image is the frame, shrunk: compare at the same size (JPEG changes pixel values a little).
+        assert np.abs(np.asarray(image, np.float64) - frame.image[::2, ::2]).mean() < 12
+        assert len(blob[0]) < 80_000
+    references = rec.column(e.REFERENCE_IMAGE, "EncodedImage:blob")
+    labels = rec.column(e.REFERENCE_LABELS, "SegmentationImage:buffer")
+    for frame, blob, logged in zip(references.frames, references.values, labels.values):
+        est = seen[frame][1]
+        image = Image.open(io.BytesIO(bytes(blob[0])))
+        assert image.size == (512, 320)
+        day = np.asarray(Image.open(day_map.image_path(est.match_index)).reduce(2), np.float64)
+        assert np.abs(np.asarray(image, np.float64) - day).mean() < 12
+        assert np.array_equal(np.asarray(logged[0], np.uint8).reshape(day_map.grid), day_map.labels(est.match_index))
+    query_labels = rec.column(e.QUERY_LABELS, "SegmentationImage:buffer").values
+    assert np.array_equal(np.asarray(query_labels[0][0], np.uint8).reshape(day_map.grid), seen[0][1].evidence.query_labels)
+    context = rec.column(e.MATCH, "AnnotationContext:context").values[0][0]
+    assert [c["class_description"]["info"]["label"] for c in context] == day_map.label_names
+    assert len({c["class_description"]["info"]["color"] for c in context}) == len(context)
+
+
+def test_an_opposite_camera_is_shown_mirrored_and_says_so(day_map, robotcar, tmp_path):
+    out = tmp_path / "rear.rrd"
+    seen = replay(day_map, robotcar / "night", out, camera="rear", frames=3)
+    rec = Recording(out)
+    h, w = day_map.grid
+    for (frame, est), lines, labels, captions, blob in zip(
+        seen,
+        rec.column(e.LINES, "LineStrips2D:strips").values,
+        rec.column(e.QUERY_LABELS, "SegmentationImage:buffer").values,
+        rec.column(e.CAPTIONS, "Points2D:labels").values,
+        rec.column(e.QUERY_IMAGE, "EncodedImage:blob").values,
+    ):
+        assert est.opposite
+        corr = est.evidence.correspondences[est.match_index]
+        assert np.allclose(np.asarray(lines)[:, 0, 0], (w - 1 - corr.query_xy[:, 0] + 0.5) * 512 / w)
+        assert np.array_equal(np.asarray(labels[0], np.uint8).reshape(h, w), est.evidence.query_labels[:, ::-1])
+        assert "MIRRORED" in captions[0] and "rear camera" in captions[0]
+        image = np.asarray(Image.open(io.BytesIO(bytes(blob[0]))), np.float64)
+        assert np.abs(image - frame.image[::2, ::-2]).mean() < 12
+        assert np.abs(image - frame.image[::2, ::2]).mean() > 20
+
+
+def test_the_map_shows_route_estimate_and_truth(day_map, robotcar, tmp_path):
+    # The RobotCar sample has no positions: give this copy of the map a synthetic straight route
+    # (5 m apart) to exercise the map view; the frames carry "truth" next to their reference.
+    refmap = ReferenceMap.open(day_map.path)
+    refmap.positions = np.stack([np.arange(10) * 5.0, np.arange(10) * 1.0], axis=1)
+    out = tmp_path / "map.rrd"
+    seen = replay(refmap, robotcar / "night", out, frames=4, positions=refmap.positions)
+    rec = Recording(out)
+    route = rec.column(e.MAP_ROUTE, "LineStrips2D:strips")
+    assert route.frames == [-1]
+    assert np.allclose(route.values[0][0], refmap.positions * [1, -1])
+    estimates = rec.column(e.MAP_ESTIMATE, "Points2D:positions")
+    truths = rec.column(e.MAP_TRUTH, "Points2D:positions")
+    assert estimates.frames == truths.frames == [0, 1, 2, 3]
+    for (frame, est), here, truth in zip(seen, estimates.values, truths.values):
+        assert np.allclose(here, [refmap.positions[est.match_index] * [1, -1]])
+        assert np.allclose(truth, [np.asarray(frame.position) * [1, -1]])
+    candidates = rec.column(e.MAP_CANDIDATES, "Points2D:positions").values
+    assert len(candidates[0]) == len(seen[0][1].candidates)
+
+
+def test_the_sequence_window_is_drawn_when_the_estimate_has_one(day_map, robotcar, tmp_path):
+    # The sequence filter is not in the Localizer yet: hand the sink estimates that carry a window,
+    # as the filter will (rows oldest first, k candidates each, inf where empty).
+    localizer = Localizer(day_map, Config())
+    frames = list(folder_traverse(robotcar / "night"))[:2]
+    out = tmp_path / "seq.rrd"
+    sink = RerunSink(day_map, ViewerOutput(rrd=out), SYNC)
+    windows = []
+    for frame in frames:
+        est = localizer.step(frame)
+        window = np.array([[0.2, 0.5, np.inf], [0.1, 0.4, 0.3], [0.3, 0.2, 0.6]])
+        cands = np.array([[0, 3, -1], [1, 4, 2], [2, 1, 5]])
+        est.evidence.sequence_window, est.evidence.sequence_candidates = window, cands
+        if frame.id == 1:  # the filter's answer is not among this frame's verified candidates
+            del est.evidence.correspondences[2]
+        est = dataclasses.replace(est, sequence_score=0.2 + frame.id, speed=1.0, match_index=2, window=3)
+        sink(frame, est)
+        windows.append(est)
+    sink.close()
+    rec = Recording(out)
+    assert [v[0] for v in rec.column(e.SEQUENCE_SCORE, "Scalars:scalars").values] == [0.2, 1.2]
+    assert [v[0] for v in rec.column(e.SPEED, "Scalars:scalars").values] == [1.0, 1.0]
+    image = rec.column(e.SEQUENCE_WINDOW, "Image:format").values[0][0]
+    assert (image["width"], image["height"]) == (10, 3)  # references 0..9 (the map), 3 frames
+    path = np.asarray(rec.column(e.SEQUENCE_TRAJECTORY, "LineStrips2D:strips").values[0][0])
+    assert np.allclose(path, [[0.5, 0.5], [1.5, 1.5], [2.5, 2.5]])
+    # Lines to the filter's answer where this frame verified it; none (not the last frame's) where it did not.
+    lines = rec.column(e.LINES, "LineStrips2D:strips").values
+    assert len(lines[0]) == len(windows[0].evidence.correspondences[2].label) > 0
+    assert len(lines[1]) == 0
+    # Both frames show reference 2: its image is logged once, and stays on screen.
+    assert rec.column(e.REFERENCE_IMAGE, "EncodedImage:blob").frames == [0]
+    assert rec.column(e.QUERY_IMAGE, "EncodedImage:blob").frames == [0, 1]
+
+
+def test_a_frame_without_a_clock_gets_no_time(day_map, robotcar, tmp_path):
+    localizer = Localizer(day_map, Config())
+    frames = list(folder_traverse(robotcar / "night"))[:3]
+    frames[0].timestamp, frames[2].timestamp = T0, T0 + 0.2  # frame 1 has no clock
+    out = tmp_path / "clock.rrd"
+    sink = RerunSink(day_map, ViewerOutput(rrd=out), SYNC)
+    for frame in frames:
+        sink(frame, localizer.step(frame))
+    sink.close()
+    times = {f: t for f, t in Recording(out).times[e.CONFIDENCE] if f >= 0}
+    assert times[1] is None
+    assert np.allclose([times[0], times[2]], [T0 * 1e9, (T0 + 0.2) * 1e9], rtol=0, atol=1e3)
+
+
+def test_reference_images_are_read_once_across_runs(day_map, robotcar, tmp_path):
+    settings = dataclasses.replace(SYNC, reference_disk_cache=tmp_path / "thumbs", reference_cache=1)
+    first, second = tmp_path / "first.rrd", tmp_path / "second.rrd"
+    seen = replay(day_map, robotcar / "night", first, settings=settings, frames=4)
+    matches = {est.match_index for _, est in seen}
+    cached = sorted((tmp_path / "thumbs").glob("*/*.jpg"))
+    assert sorted(int(p.stem) for p in cached) == sorted(matches)
+    sink = RerunSink(day_map, ViewerOutput(rrd=second), settings)
+    for frame, est in seen:
+        sink(frame, est)
+    sink.close()
+    assert sink.match_view.references.decoded == 0  # every reference came from the disk cache
+    one, two = (Recording(p).column(e.REFERENCE_IMAGE, "EncodedImage:blob") for p in (first, second))
+    assert one.frames == two.frames and one.values == two.values
+    # Another build of the map (another manifest), or another display size or quality, has its own images.
+    import json
+    import shutil
+
+    from lostx.viz.images import ReferenceImages
+
+    rebuilt = tmp_path / "rebuilt"
+    shutil.copytree(day_map.path, rebuilt)
+    manifest = json.loads((rebuilt / "manifest.json").read_text())
+    manifest["created"] = "another build"
+    (rebuilt / "manifest.json").write_text(json.dumps(manifest))
+    folders = {ReferenceImages(m, width, quality, disk=tmp_path / "thumbs").folder
+               for m, width, quality in ((day_map, 640, 80), (ReferenceMap.open(rebuilt), 640, 80),
+                                         (day_map, 320, 80), (day_map, 640, 70))}
+    assert len(folders) == 4
+
+
+# -- pacing and the background thread ---------------------------------------------------------------
+
+
+class FakeClock:
+    def __init__(self, step: float) -> None:
+        self.now, self.step = 0.0, step
+
+    def __call__(self) -> float:
+        t = self.now
+        self.now += self.step
+        return t
+
+
+def test_heavy_entities_follow_the_rate_the_rest_every_frame(day_map, robotcar, tmp_path):
+    out = tmp_path / "rate.rrd"
+    settings = dataclasses.replace(SYNC, heavy_hz=10.0)
+    replay(day_map, robotcar / "night", out, settings=settings, frames=6, clock=FakeClock(0.05))  # 20 fps
+    rec = Recording(out)
+    assert rec.column(e.CONFIDENCE, "Scalars:scalars").frames == [0, 1, 2, 3, 4, 5]
+    for entity in (e.QUERY_IMAGE, e.LINES, e.QUERY_LABELS):
+        component = {e.LINES: "LineStrips2D:strips", e.QUERY_LABELS: "SegmentationImage:buffer"}.get(
+            entity, "EncodedImage:blob")
+        assert rec.column(entity, component).frames == [0, 2, 4], entity
+
+
+def test_rate_gate():
+    gate = RateGate(4.0, FakeClock(0.1))  # asked at 10 Hz, opens at 4 Hz on average
+    opened = [gate.ready() for _ in range(40)]
+    times = np.flatnonzero(opened) * 0.1
+    assert opened[0] and sum(opened) == 16  # 4 a second over 4 s: t = 0, 0.3, 0.5, 0.8, 1.1, ...
+    assert np.diff(times).min() >= 0.2 - 1e-9  # never two within one asking interval of a slot
+    assert all(RateGate(None).ready() for _ in range(3)) and all(RateGate(0).ready() for _ in range(3))
+
+
+def test_background_thread_logs_every_frame_it_is_given_time_for(day_map, robotcar, tmp_path):
+    localizer = Localizer(day_map, Config())
+    frames = list(folder_traverse(robotcar / "night"))[:4]
+    out = tmp_path / "bg.rrd"
+    sink = RerunSink(day_map, ViewerOutput(rrd=out), dataclasses.replace(SYNC, background=True))
+    for frame in frames:
+        sink(frame, localizer.step(frame))
+        sink.flush()  # as if the next frame took longer than the logging
+    # Frames arriving faster than the thread logs them replace the pending one: none queue up.
+    est = localizer.step(frames[-1])
+    for i in range(20):
+        sink(dataclasses.replace(frames[-1], id=10 + i), est)
+    sink.close()
+    assert sink.heavy_submitted == 24
+    assert sink.heavy_logged + sink.heavy_dropped == 24 and sink.heavy_logged >= 5
+    rec = Recording(out)
+    logged = rec.column(e.QUERY_IMAGE, "EncodedImage:blob").frames
+    assert logged[:4] == [0, 1, 2, 3] and len(logged) == sink.heavy_logged
+    assert logged[-1] == 29, "the last frame is never dropped"
+    assert rec.column(e.CONFIDENCE, "Scalars:scalars").frames == [0, 1, 2, 3] + list(range(10, 30))
+
+
+def test_a_failing_view_does_not_stop_the_localizer(day_map, robotcar, tmp_path):
+    localizer = Localizer(day_map, Config())
+    frame = folder_traverse(robotcar / "night").frame(0)
+    est = localizer.step(frame)
+    broken = dataclasses.replace(est, candidates=[dataclasses.replace(est.candidates[0], index=10_000)])
+    sink = RerunSink(day_map, ViewerOutput(rrd=tmp_path / "broken.rrd"), dataclasses.replace(SYNC, strict=False))
+    sink(frame, broken)
+    sink(frame, est)
+    sink.close()
+    assert sink.errors == 1 and sink.frames == 2
+    strict = RerunSink(day_map, ViewerOutput(rrd=tmp_path / "strict.rrd"), SYNC)
+    with pytest.raises(IndexError):
+        strict(frame, broken)
+    strict.close()
+
+
+# -- the command line -----------------------------------------------------------------------------------
+
+
+def test_lostx_match_records_what_it_writes_to_the_csv(day_map, robotcar, tmp_path, monkeypatch):
+    import csv
+
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+
+    from lostx.cli import main
+
+    out, rrd = tmp_path / "m.csv", tmp_path / "m.rrd"
+    assert main(["match", str(day_map.path), str(robotcar / "night"), "--out", str(out), "--rrd", str(rrd),
+                 "--quiet", "--viewer-rate", "0"]) == 0
+    rows = list(csv.DictReader(open(out)))
+    rec = Recording(rrd)
+    assert [int(v[0]) for v in rec.column(e.MATCH_INDEX, "Scalars:scalars").values] == \
+        [int(r["match_index"]) for r in rows]
+    # The command logs images and lines on the background thread: a frame may be skipped under load,
+    # but each one logged shows that frame's correspondences, and the last one is always there.
+    lines = rec.column(e.LINES, "LineStrips2D:strips")
+    assert lines.frames[-1] == len(rows) - 1
+    for frame, strips in zip(lines.frames, lines.values):
+        assert len(strips) == int(rows[frame]["correspondences"])
+
+
+def test_viewer_options_make_a_sink_only_when_asked(day_map, tmp_path, monkeypatch):
+    import argparse
+
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+
+    from lostx.options import add_viewer_options, viewer_sink_from_args
+
+    parser = argparse.ArgumentParser()
+    add_viewer_options(parser)
+    assert viewer_sink_from_args(parser.parse_args([]), day_map) is None
+    args = parser.parse_args(["--rrd", str(tmp_path / "x.rrd"), "--viewer-rate", "5", "--viewer-memory", "1GiB"])
+    sink = viewer_sink_from_args(args, day_map)
+    assert sink is not None and sink.settings.heavy_hz == 5.0
+    sink.close()
+    assert (tmp_path / "x.rrd").stat().st_size > 0
+    assert parser.parse_args(["--connect"]).connect == "rerun+http://127.0.0.1:9876/proxy"
+
+
+def test_the_viewer_is_found_without_an_activated_environment(monkeypatch):
+    from lostx.viz.output import viewer_executable
+
+    monkeypatch.setenv("PATH", "")
+    found = viewer_executable()
+    assert found is not None and Path(found).is_file() and os.access(found, os.X_OK)
+
+
+# -- geometry -------------------------------------------------------------------------------------------
+
+
+def test_display_size_divides_by_a_whole_number():
+    assert display_size(640, 1024, 640) == (512, 320)
+    assert display_size(640, 1024, 400) == (341, 213)
+    assert display_size(480, 640, 640) == (640, 480)
+    assert display_size(480, 640, None) == (640, 480)
+
+
+def test_mirrored_panel_flips_cell_centres():
+    xy = np.array([[0, 0], [31, 5]])
+    plain = Panel(0, 512, 320).cell_centres(xy, (32, 32))
+    mirrored = Panel(0, 512, 320, mirrored=True).cell_centres(xy, (32, 32))
+    assert np.allclose(plain, [[8, 5], [504, 55]])
+    assert np.allclose(mirrored, [[504, 5], [8, 55]])
+    assert np.allclose(Panel(100, 512, 320).cell_centres(xy, (32, 32))[:, 0], plain[:, 0] + 100)
+
+
+def test_sequence_band_keeps_the_lower_cost_and_clips_to_the_band():
+    window = np.array([[0.5, 0.2, np.inf], [0.9, 0.1, 0.4]])
+    cands = np.array([[7, 7, 8], [30, 5, 6]])
+    band = sequence_band(window, cands, n_refs=40, centre=6, half_width=2)
+    assert band.first == 4 and band.width == 5
+    expected = np.full((2, 5), np.nan)
+    expected[0, 3] = 0.2          # reference 7 listed twice: the lower cost
+    expected[1, 1], expected[1, 2] = 0.1, 0.4
+    assert np.array_equal(np.isnan(band.costs), np.isnan(expected))
+    assert np.allclose(band.costs[~np.isnan(band.costs)], expected[~np.isnan(expected)])
+    rgb = colourise(band.costs, np.array([[0, 0, 0], [255, 255, 255]], np.uint8))
+    assert tuple(rgb[1, 1]) == (255, 255, 255) and tuple(rgb[0, 3]) == (255, 255, 255)  # 0.1 and 0.2 round up
+    assert tuple(rgb[0, 0]) == (25, 25, 25)
+    assert np.allclose(trajectory(3, 10, 2.0, 4), [[2.5, 0.5], [4.5, 1.5], [6.5, 2.5]])

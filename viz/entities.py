@@ -1,0 +1,56 @@
+"""Entity paths and timeline names of the lostx recording, in one place.
+
+The sink logs to these paths, the blueprint lays out views over them, and
+anything reading a recording back (the tests, a user's notebook) finds the
+data under them.
+"""
+
+from __future__ import annotations
+
+FRAME_TIMELINE = "frame"
+"""Sequence timeline: the frame's id in its stream."""
+TIME_TIMELINE = "time"
+"""The frame's own timestamp (absent for frames without a clock)."""
+
+# The match space: query and reference side by side, correspondences between them.
+MATCH = "match"
+QUERY = "match/query"
+QUERY_IMAGE = "match/query/image"
+QUERY_LABELS = "match/query/labels"
+QUERY_OUTLINE = "match/query/outline"
+REFERENCE = "match/reference"
+REFERENCE_IMAGE = "match/reference/image"
+REFERENCE_LABELS = "match/reference/labels"
+REFERENCE_OUTLINE = "match/reference/outline"
+LINES = "match/lines"
+CAPTIONS = "match/captions"
+"""What each image is (a query shown mirrored says so), above the images."""
+
+# Time series.
+CONFIDENCE = "plots/confidence"
+SEQUENCE_SCORE = "plots/sequence_score"
+SPEED = "plots/speed"
+MATCH_INDEX = "route/match_index"
+SINGLE_MATCH_INDEX = "route/single_match_index"
+CORRESPONDENCES = "plots/correspondences"
+
+# Per-frame summaries.
+STATUS = "status"
+CANDIDATE_SCORES = "candidates/scores"
+CANDIDATE_TABLE = "candidates/table"
+
+# The sequence filter's window: costs over reference index and time, and the chosen trajectory.
+SEQUENCE = "sequence"
+SEQUENCE_WINDOW = "sequence/window"
+SEQUENCE_TRAJECTORY = "sequence/trajectory"
+
+# The map, where the reference map has positions.
+MAP = "map"
+MAP_ROUTE = "map/route"
+MAP_CANDIDATES = "map/candidates"
+MAP_ESTIMATE = "map/estimate"
+MAP_TRUTH = "map/truth"
+MAP_ERROR = "map/error"
+
+HEAVY = (QUERY_IMAGE, QUERY_LABELS, QUERY_OUTLINE, REFERENCE_IMAGE, REFERENCE_LABELS, REFERENCE_OUTLINE, LINES, CAPTIONS)
+"""Entities whose logging rate is limited (images, label maps, correspondence lines)."""

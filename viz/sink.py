@@ -1,0 +1,283 @@
+"""The Rerun sink: ``sink(frame, estimate)`` logs what the localizer saw and answered.
+
+Per frame it logs
+
+- light entities, every frame, on the caller's thread: confidence, sequence
+  score, speed, correspondence count and the matched reference index as time
+  series; a status text; the top-10 candidates as a table and a bar chart; the
+  sequence window as an image; the estimate (and the true position, when the
+  frame carries one) on the map;
+- heavy entities, at most ``heavy_hz`` frames a second, on a background thread
+  (see :mod:`.worker`): the query image (mirrored when its camera faces opposite
+  to the map's), the matched reference image, both label maps, and the
+  correspondence lines (:mod:`.match_view`).
+
+What is drawn is computed in :mod:`.geometry`, :mod:`.images` and
+:mod:`.summary`; this module decides what is logged where and when.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+import uuid
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import rerun as rr
+
+from lostx.core.estimate import Estimate
+from lostx.core.frame import Frame
+from lostx.core.paths import cache_dir
+from lostx.core.refmap import ReferenceMap
+
+from . import colours
+from . import entities as e
+from .blueprint import build_blueprint
+from .geometry import colourise, map_xy, sequence_band, trajectory
+from .match_view import MatchLogger
+from .output import OpenedOutput, open_output
+from .rate import RateGate
+from .summary import candidates_markdown, matched_candidate, status_markdown
+from .target import ViewerOutput
+from .worker import LatestWorker
+
+log = logging.getLogger(__name__)
+
+WORKER_TIMEOUT = 60.0
+"""Seconds :meth:`RerunSink.flush` and :meth:`RerunSink.close` wait for the background thread (one frame's logging)."""
+EPOCH_AFTER = 1e8
+"""Frame timestamps above this many seconds are Unix time (1973 on); below it, seconds since the stream began."""
+
+
+@dataclass(frozen=True)
+class SinkSettings:
+    heavy_hz: float | None = 10.0
+    """Most frames per second whose images, label maps and lines are logged; None or 0: every frame."""
+    background: bool = True
+    """Log the heavy entities on a background thread (a busy thread skips frames rather than queueing them)."""
+    image_width: int | None = 640
+    """About how wide images are shown (the source width over a whole number; never enlarged); None: full size."""
+    jpeg_quality: int = 80
+    label_opacity: float = 0.15
+    """Opacity of the label maps over the images (0 hides them; they can be toggled in the viewer too)."""
+    sequence_half_width: int = 25
+    """The sequence window image shows the reference frames within this many of the match."""
+    reference_cache: int = 64
+    """Encoded reference images kept in memory."""
+    reference_disk_cache: Path | None = field(default_factory=lambda: cache_dir() / "viewer")
+    """Where encoded reference images are kept between runs (about 30 kB each); None: not kept."""
+    strict: bool = False
+    """Raise logging errors instead of counting them (a viewer must never stop the localizer)."""
+
+
+@dataclass(frozen=True)
+class _HeavyJob:
+    frame: Frame
+    estimate: Estimate
+
+
+class RerunSink:
+    """Logs each (frame, estimate) of one stream to Rerun. Call :meth:`close` at the end.
+
+    The background thread reads the frame's image and the estimate's evidence after the
+    call returns: hand over arrays that are not overwritten afterwards (the localizer's
+    estimates and decoded frames never are; a camera driver's reused buffer would be).
+    """
+
+    def __init__(
+        self,
+        refmap: ReferenceMap,
+        output: ViewerOutput | None = None,
+        settings: SinkSettings | None = None,
+        recording: rr.RecordingStream | None = None,
+        application_id: str = "lostx",
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        """``output`` says where the recording goes (see :class:`ViewerOutput`); alternatively pass a
+        ``recording`` whose sinks are already set. ``clock`` paces the heavy entities (tests pass their own)."""
+        self.map = refmap
+        self.settings = s = settings or SinkSettings()
+        self.rec = recording or rr.RecordingStream(application_id, recording_id=uuid.uuid4())
+        self.match_view = MatchLogger(self.rec, refmap, s.image_width, s.jpeg_quality, s.label_opacity,
+                                      s.reference_cache, s.reference_disk_cache)
+        self.blueprint = build_blueprint(with_map=refmap.positions is not None,
+                                         image_size=self.match_view.references.display_size())
+        self.opened = open_output(self.rec, output, self.blueprint) if output is not None else OpenedOutput()
+        self.gate = RateGate(s.heavy_hz, clock)
+        self.worker: LatestWorker[_HeavyJob] | None = LatestWorker(self._log_heavy) if s.background else None
+        self.frames = 0
+        self.heavy_submitted = 0
+        self.errors = 0
+        self.seconds = 0.0
+        """Time the caller spent in this sink (the background thread's time is not in it)."""
+        self._lut = _colour_lut()
+        self._closed = False
+        self._log_static()
+
+    # -- the sink protocol -------------------------------------------------------------------
+
+    def __call__(self, frame: Frame, estimate: Estimate) -> None:
+        start = time.perf_counter()
+        try:
+            self._log_light(frame, estimate)
+            if self.gate.ready():
+                self.heavy_submitted += 1
+                job = _HeavyJob(frame, estimate)
+                if self.worker is not None:
+                    self.worker.submit(job)
+                else:
+                    self._log_heavy(job)
+        except Exception:
+            self.errors += 1
+            if self.settings.strict:
+                raise
+            if self.errors == 1:
+                log.exception("the Rerun sink failed on frame %s; the localizer goes on", frame.id)
+        finally:
+            self.seconds += time.perf_counter() - start
+
+    def flush(self, timeout: float = WORKER_TIMEOUT) -> None:
+        """Wait until everything submitted so far is logged and handed to the destinations."""
+        if self.worker is not None:
+            self.worker.wait_idle(timeout)
+        self.rec.flush()
+
+    def close(self) -> None:
+        """Finish the pending heavy frame, flush, and close the destinations (an .rrd gets its footer)."""
+        if self._closed:
+            return
+        self._closed = True
+        if self.worker is not None:
+            self.worker.close(WORKER_TIMEOUT)
+        self.rec.flush()
+        self.rec.disconnect()
+        if self.settings.strict and self.worker is not None and self.worker.error is not None:
+            raise self.worker.error
+
+    @property
+    def heavy_logged(self) -> int:
+        """Frames whose images and lines were logged (fewer than submitted where the worker was busy)."""
+        if self.worker is None:
+            return self.heavy_submitted
+        return self.worker.done
+
+    @property
+    def heavy_dropped(self) -> int:
+        """Frames whose images and lines were skipped because the background thread was still busy."""
+        return self.worker.dropped if self.worker is not None else 0
+
+    @property
+    def heavy_failed(self) -> int:
+        """Frames whose images and lines failed to log on the background thread (see the log)."""
+        return self.worker.failed if self.worker is not None else 0
+
+    # -- what is logged --------------------------------------------------------------------------
+
+    def _set_time(self, frame: Frame) -> None:
+        rec = self.rec
+        # Time is per thread in Rerun, and a frame without a clock must not inherit the previous frame's time.
+        rec.reset_time()
+        rec.set_time(e.FRAME_TIMELINE, sequence=int(frame.id))
+        if frame.timestamp is not None and math.isfinite(frame.timestamp):
+            if frame.timestamp > EPOCH_AFTER:
+                rec.set_time(e.TIME_TIMELINE, timestamp=float(frame.timestamp))
+            else:
+                rec.set_time(e.TIME_TIMELINE, duration=float(frame.timestamp))
+
+    def _log_static(self) -> None:
+        rec = self.rec
+        names = self.map.label_names
+        if names:
+            rec.log(e.MATCH, rr.AnnotationContext(colours.annotation_entries(names)), static=True)
+        for path, name, colour in (
+            (e.CONFIDENCE, "confidence", colours.CONFIDENCE),
+            (e.SEQUENCE_SCORE, "sequence score (lower is better)", colours.SEQUENCE_SCORE),
+            (e.SPEED, "speed", colours.SPEED),
+            (e.MATCH_INDEX, "match", colours.MATCH_INDEX),
+            (e.CORRESPONDENCES, "correspondences", colours.CORRESPONDENCES),
+        ):
+            rec.log(path, rr.SeriesLines(colors=[colour], names=[name], widths=[2.0]), static=True)
+        # Dots, not a line: where the single-frame answer agrees with the answer, both stay visible.
+        rec.log(e.SINGLE_MATCH_INDEX, rr.SeriesPoints(colors=[colours.SINGLE_MATCH_INDEX], names=["single-frame match"],
+                                                      markers=["circle"], marker_sizes=[4.0]), static=True)
+        if self.map.positions is not None:
+            rec.log(e.MAP_ROUTE, rr.LineStrips2D([map_xy(self.map.positions)], colors=[colours.ROUTE],
+                                                 radii=rr.Radius.ui_points(1.5)), static=True)
+
+    def _log_light(self, frame: Frame, est: Estimate) -> None:
+        self._set_time(frame)
+        self.frames += 1
+        self._log_series(est)
+        self.rec.log(e.STATUS, rr.TextDocument(status_markdown(frame, est, self.map), media_type="text/markdown"))
+        self._log_candidates(est)
+        self._log_sequence(est)
+        if self.map.positions is not None:
+            self._log_map(frame, est)
+
+    def _log_heavy(self, job: _HeavyJob) -> None:
+        self._set_time(job.frame)
+        self.match_view.log(job.frame, job.estimate)
+
+    def _log_series(self, est: Estimate) -> None:
+        rec = self.rec
+        rec.log(e.CONFIDENCE, rr.Scalars(float(est.confidence)))
+        rec.log(e.MATCH_INDEX, rr.Scalars(float(est.match_index)))
+        rec.log(e.SINGLE_MATCH_INDEX, rr.Scalars(float(est.single_match_index)))
+        if est.sequence_score is not None and math.isfinite(est.sequence_score):
+            rec.log(e.SEQUENCE_SCORE, rr.Scalars(float(est.sequence_score)))
+        if est.speed is not None and math.isfinite(est.speed):
+            rec.log(e.SPEED, rr.Scalars(float(est.speed)))
+        matched = matched_candidate(est)
+        if matched is not None:
+            rec.log(e.CORRESPONDENCES, rr.Scalars(float(matched.correspondences)))
+
+    def _log_candidates(self, est: Estimate) -> None:
+        scores = np.array([c.score for c in est.candidates], dtype=np.float64)
+        # A candidate with nothing verified scores inf: no bar (NaN) rather than a misleading height.
+        scores[~np.isfinite(scores)] = np.nan
+        self.rec.log(e.CANDIDATE_SCORES, rr.BarChart(scores, color=colours.CANDIDATE))
+        self.rec.log(e.CANDIDATE_TABLE, rr.TextDocument(candidates_markdown(est, self.map), media_type="text/markdown"))
+
+    def _log_sequence(self, est: Estimate) -> None:
+        ev = est.evidence
+        if ev is None or ev.sequence_window is None or ev.sequence_candidates is None or len(ev.sequence_window) == 0:
+            return
+        band = sequence_band(ev.sequence_window, ev.sequence_candidates, self.map.n_frames, est.match_index,
+                             self.settings.sequence_half_width)
+        self.rec.log(e.SEQUENCE_WINDOW, rr.Image(colourise(band.costs, self._lut)))
+        if est.speed is not None and math.isfinite(est.speed):
+            path = trajectory(band.costs.shape[0], est.match_index, est.speed, band.first)
+            self.rec.log(e.SEQUENCE_TRAJECTORY, rr.LineStrips2D([path], colors=[colours.TRAJECTORY],
+                                                                radii=rr.Radius.ui_points(2.0)))
+        else:
+            self.rec.log(e.SEQUENCE_TRAJECTORY, rr.Clear(recursive=False))
+
+    def _log_map(self, frame: Frame, est: Estimate) -> None:
+        rec = self.rec
+        positions = self.map.positions
+        assert positions is not None
+        idx = np.array([c.index for c in est.candidates], dtype=np.int64)
+        if len(idx):
+            rec.log(e.MAP_CANDIDATES, rr.Points2D(map_xy(positions[idx]), colors=[colours.CANDIDATE],
+                                                  radii=rr.Radius.ui_points(3.0)))
+        here = map_xy(positions[[est.match_index]])
+        colour = colours.LOCALIZED if est.state == "localized" else colours.NOT_LOCALIZED
+        rec.log(e.MAP_ESTIMATE, rr.Points2D(here, colors=[colour], radii=rr.Radius.ui_points(7.0),
+                                            labels=[f"match {est.match_index}"]))
+        if frame.position is not None:
+            truth = map_xy(np.asarray([frame.position], dtype=np.float64))
+            rec.log(e.MAP_TRUTH, rr.Points2D(truth, colors=[colours.TRUTH], radii=rr.Radius.ui_points(5.0),
+                                             labels=["truth"]))
+            rec.log(e.MAP_ERROR, rr.LineStrips2D([np.concatenate([here, truth])], colors=[colours.NOT_LOCALIZED],
+                                                 radii=rr.Radius.ui_points(1.0)))
+
+
+def _colour_lut() -> np.ndarray:
+    """256 colours of viridis, dark (high cost) to bright (low cost)."""
+    from matplotlib import colormaps
+
+    return (colormaps["viridis"](np.linspace(0.0, 1.0, 256))[:, :3] * 255).astype(np.uint8)
