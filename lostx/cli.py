@@ -14,7 +14,7 @@ from lostx import __version__
 from lostx.core.errors import LostxError
 from lostx.stream.processes import exit_with_parent
 
-COMMANDS = ("demo", "map", "match", "serve", "replay", "listen", "keys", "backbones")
+COMMANDS = ("demo", "map", "match", "eval", "serve", "replay", "listen", "keys", "backbones")
 
 
 def build_parser() -> argparse.ArgumentParser:

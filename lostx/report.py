@@ -143,7 +143,8 @@ def plot_pr_curves(series: Sequence[tuple[str, PRCurve]], path: str | Path, titl
         # Start at recall 0 with the strictest point's precision so the line reaches the axis.
         recall = np.r_[0.0, curve.recall] * 100
         precision = np.r_[curve.precision[0], curve.precision] * 100
-        (line,) = ax.plot(recall, precision, label=label, linewidth=1.6)
+        style = "--" if "sequence" in label else "-"  # identical curves of two modes stay visible
+        (line,) = ax.plot(recall, precision, style, label=label, linewidth=1.6)
         k = int(np.argmax(curve.f1))
         ax.plot([curve.recall[k] * 100], [curve.precision[k] * 100], "o", color=line.get_color(), markersize=5)
     ax.set_xlim(0, 100)

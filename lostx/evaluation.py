@@ -1,0 +1,268 @@
+"""``lostx eval`` as a Python API: several methods on one reference/query pair, single-frame and sequence.
+
+Methods (all on the same frames and the same ground truth):
+
+- ``lostx``: LoST descriptor search + spatial layout verification (the paper's LoST-X);
+- ``lost``: the LoST descriptor alone (the paper's "LoST");
+- ``appearance``: GeM pooling of the same network's features, cosine distance (an
+  appearance baseline on the same network, as the paper compares against);
+- ``thumbnail``: SeqSLAM's patch-normalised thumbnails, sum of absolute differences.
+
+Each runs single-frame and through the same sequence filter and tracker
+(:meth:`Localizer.update`). In sequence mode a query's candidate list for
+Recall@N is the sequence answer followed by its single-frame candidates.
+
+The network runs once per image: the reference side is kept as a LoST map
+(it holds the appearance descriptors too) and the query side as a file of
+per-frame descriptions, both in a cache folder keyed by the images, the model
+and the settings, so re-running the metrics does not re-run the network.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Sequence
+
+import numpy as np
+from tqdm import tqdm
+
+from lostx.core.backbone import Backbone, load_backbone
+from lostx.core.build import build_map
+from lostx.core.config import Config
+from lostx.core.describe import LostDescriber
+from lostx.core.errors import InputError, MapError
+from lostx.core.frame import Frame
+from lostx.core.groundtruth import GroundTruth
+from lostx.core.keypoints import KeypointEvidence
+from lostx.core.localizer import Localizer
+from lostx.core.matcher import MatchResult, PlaceMatcher, QueryDescription, uniqueness
+from lostx.core.metrics import Evaluation, evaluate_tolerances
+from lostx.core.refmap import ReferenceMap
+from lostx.core.search import cosine_distances, top_k
+from lostx.core.thumbnail import ThumbnailDescriber
+from lostx.replay.dataset import DatasetPair
+from lostx.replay.folder import Traverse
+
+METHODS: dict[str, str] = {
+    "lostx": "LoST-X",
+    "lost": "LoST",
+    "appearance": "appearance (GeM)",
+    "thumbnail": "thumbnail (SeqSLAM)",
+}
+MODES = ("single", "sequence")
+DEFAULT_TOLERANCES = {"frames": (0.0, 1.0, 2.0), "m": (5.0, 10.0, 20.0, 40.0, 80.0)}
+NETWORK_METHODS = ("lostx", "lost", "appearance")
+
+
+@dataclass
+class Run:
+    """One method in one mode: an answer, a confidence and a candidate list per query."""
+
+    method: str
+    mode: str
+    predictions: np.ndarray
+    confidences: np.ndarray
+    candidates: np.ndarray
+    evaluations: list[Evaluation] = field(default_factory=list)
+
+    @property
+    def label(self) -> str:
+        return f"{METHODS[self.method]}, {self.mode}"
+
+
+def _fingerprint(traverse: Traverse, extra: dict) -> str:
+    files = [(f.name, f.stat().st_size, f.stat().st_mtime_ns) for f in traverse.files]
+    payload = json.dumps({"files": files, "mirror": traverse.mirror, **extra}, sort_keys=True, default=str)
+    return hashlib.sha256(payload.encode()).hexdigest()[:16]
+
+
+def _settings_key(config: Config, backbone: Backbone) -> dict:
+    lost = dataclasses.asdict(config.lost)
+    return {"model": backbone.info.model_md5, "backbone": backbone.info.name, "lost": lost}
+
+
+def reference_maps(pair: DatasetPair, config: Config, cache: Path, methods: Sequence[str],
+                   backbone: Backbone | None, progress: bool) -> dict[str, ReferenceMap]:
+    """The reference side as maps: a LoST map (network methods) and a thumbnail map, built once and cached."""
+    maps: dict[str, ReferenceMap] = {}
+    meta = {"camera": pair.reference.camera, "image_root": str(pair.reference.root.resolve())}
+    if any(m in NETWORK_METHODS for m in methods):
+        assert backbone is not None
+        key = _fingerprint(pair.reference, {"kind": "lost", **_settings_key(config, backbone)})
+        maps["lost"] = _cached_map(cache / f"reference-lost-{key}", pair.reference, config,
+                                   LostDescriber(backbone, config.lost), meta, progress)
+    if "thumbnail" in methods:
+        key = _fingerprint(pair.reference, {"kind": "thumbnail"})
+        maps["thumbnail"] = _cached_map(cache / f"reference-thumbnail-{key}", pair.reference, config,
+                                        ThumbnailDescriber(), meta, progress)
+    return maps
+
+
+def _cached_map(path: Path, traverse: Traverse, config: Config, describer, meta: dict, progress: bool) -> ReferenceMap:
+    if (path / "manifest.json").is_file():
+        try:
+            return ReferenceMap.open(path)
+        except MapError:
+            pass  # a damaged cache entry is rebuilt
+    build_map(traverse, path, config, describer, meta, overwrite=True, total=len(traverse), progress=progress)
+    return ReferenceMap.open(path)
+
+
+def query_descriptions(traverse: Traverse, matcher: PlaceMatcher, cache: Path, config: Config,
+                       progress: bool) -> list[QueryDescription]:
+    """Every query frame through the network once; cached as one .npz keyed by the images and settings."""
+    backbone = matcher.describer.backbone  # type: ignore[union-attr]
+    key = _fingerprint(traverse, {"kind": "queries", **_settings_key(config, backbone)})
+    path = cache / f"queries-{key}.npz"
+    if path.is_file():
+        try:
+            return _load_descriptions(path)
+        except (OSError, ValueError, KeyError):
+            pass  # a damaged cache entry is recomputed
+    out = []
+    for frame in tqdm(traverse, total=len(traverse), desc="describing queries", unit="frame",
+                      disable=not progress, leave=False):
+        out.append(matcher.describe(frame.image))
+    _save_descriptions(path, out)
+    return out
+
+
+def _save_descriptions(path: Path, items: list[QueryDescription]) -> None:
+    ev = KeypointEvidence.stack([d.evidence for d in items])
+    slots = np.cumsum([0] + [len(d.evidence.slot_keys) for d in items])
+    arrays = {
+        "descriptor": np.stack([d.descriptor for d in items]),
+        "appearance": np.stack([d.appearance for d in items]),
+        "labels": np.stack([d.labels for d in items]),
+        "network": np.array([d.timings.get("network", 0.0) for d in items]),
+        "keypoints": ev.keypoints, "evidence_labels": ev.labels, "slot_keys": ev.slot_keys,
+        "slot_offsets": ev.slot_offsets, "channels": ev.channels, "values": ev.values, "slot_norms": ev.slot_norms,
+        "frame_slots": slots, "grid": np.array(ev.grid), "feature_dim": np.array(ev.feature_dim),
+    }
+    tmp = path.with_name(path.name + ".partial.npz")
+    np.savez(tmp, **arrays)
+    tmp.replace(path)
+
+
+def _load_descriptions(path: Path) -> list[QueryDescription]:
+    with np.load(path) as a:
+        data = {k: a[k] for k in a.files}
+    grid = tuple(int(v) for v in data["grid"])
+    n_loc = grid[0] * grid[1]
+    out = []
+    for i in range(len(data["descriptor"])):
+        lo, hi = int(data["frame_slots"][i]), int(data["frame_slots"][i + 1])
+        e0, e1 = int(data["slot_offsets"][lo]), int(data["slot_offsets"][hi])
+        evidence = KeypointEvidence(
+            keypoints=data["keypoints"][i : i + 1], labels=data["evidence_labels"][i : i + 1],
+            slot_keys=data["slot_keys"][lo:hi] - i * n_loc, slot_offsets=data["slot_offsets"][lo : hi + 1] - e0,
+            channels=data["channels"][e0:e1], values=data["values"][e0:e1], slot_norms=data["slot_norms"][lo:hi],
+            grid=grid, feature_dim=int(data["feature_dim"]),
+        )
+        out.append(QueryDescription(data["descriptor"][i], data["appearance"][i], evidence, data["labels"][i],
+                                    {"network": float(data["network"][i]), "descriptor": 0.0}))
+    return out
+
+
+def appearance_result(query: np.ndarray, refs: np.ndarray, config: Config) -> MatchResult:
+    """Single-frame answer of the appearance baseline: cosine distance of GeM descriptors."""
+    distances = cosine_distances(query, refs)
+    order = top_k(distances, config.verify.top_k)
+    ranked = distances[order]
+    return MatchResult(order, ranked, ranked, uniqueness(order, ranked, config.verify.uniqueness_exclusion),
+                       map_scores=distances, timings={})
+
+
+def single_results(method: str, pair: DatasetPair, maps: dict[str, ReferenceMap], config: Config,
+                   descriptions: list[QueryDescription] | None, backbone: Backbone | None,
+                   progress: bool) -> list[MatchResult]:
+    opposite = pair.query.camera != pair.reference.camera
+    if method == "thumbnail":
+        matcher = PlaceMatcher(maps["thumbnail"], config)
+        frames = tqdm(pair.query, total=len(pair.query), desc="thumbnails", unit="frame", disable=not progress,
+                      leave=False)
+        return [matcher.match(f.image, opposite=opposite) for f in frames]
+    assert descriptions is not None
+    if method == "appearance":
+        refs = maps["lost"].appearance
+        if refs is None:
+            raise MapError(f"{maps['lost'].path} holds no appearance descriptors; rebuild it")
+        return [appearance_result(d.appearance, refs, config) for d in descriptions]
+    verify_cfg = dataclasses.replace(config.verify, enabled=method == "lostx")
+    matcher = PlaceMatcher(maps["lost"], dataclasses.replace(config, verify=verify_cfg), backbone)
+    return [matcher.match_description(d, opposite=opposite) for d in descriptions]
+
+
+def runs_of(method: str, results: list[MatchResult], refmap: ReferenceMap, query: Traverse, config: Config,
+            backbone: Backbone | None, modes: Sequence[str]) -> list[Run]:
+    out = []
+    if "single" in modes:
+        out.append(Run(method, "single", np.array([r.best for r in results]),
+                       np.array([r.confidence for r in results]), _candidate_lists([r.candidates for r in results])))
+    if "sequence" in modes:
+        localizer = Localizer(refmap, dataclasses.replace(config, sequence=dataclasses.replace(config.sequence,
+                                                                                                enabled=True)),
+                              backbone)
+        estimates = []
+        for i, result in enumerate(results):
+            # The sequence stages read the frame's id, clock and camera, never its pixels.
+            stamp = float(query.timestamps[i]) if query.timestamps is not None else None
+            frame = Frame(id=i, image=np.zeros((1, 1, 3), np.uint8), timestamp=stamp, camera=query.camera)
+            estimates.append(localizer.update(frame, result))
+        lists = [[e.match_index] + [int(c) for c in r.candidates if c != e.match_index]
+                 for e, r in zip(estimates, results)]
+        out.append(Run(method, "sequence", np.array([e.match_index for e in estimates]),
+                       np.array([e.confidence for e in estimates]), _candidate_lists(lists)))
+    return out
+
+
+def _candidate_lists(lists: Sequence[Sequence[int]], k: int = 10) -> np.ndarray:
+    out = np.full((len(lists), k), -1, dtype=np.int64)
+    for i, row in enumerate(lists):
+        row = list(row)[:k]
+        out[i, : len(row)] = row
+    return out
+
+
+def evaluate_pair(
+    pair: DatasetPair,
+    config: Config,
+    cache: Path,
+    methods: Sequence[str] = tuple(METHODS),
+    modes: Sequence[str] = MODES,
+    tolerances: Sequence[float] | None = None,
+    unit: str | None = None,
+    progress: bool = True,
+    log: Callable[[str], None] = print,
+) -> tuple[list[Run], list[GroundTruth]]:
+    """Run every method in every mode and evaluate each at every tolerance."""
+    unknown = [m for m in methods if m not in METHODS]
+    if unknown:
+        raise InputError(f"unknown method(s) {', '.join(unknown)}; choose from {', '.join(METHODS)}")
+    unit = unit or pair.default_unit
+    tolerances = list(tolerances) if tolerances else list(DEFAULT_TOLERANCES[unit])
+    truths = pair.ground_truth(tolerances, unit)  # fails early on a pair without ground truth
+    cache.mkdir(parents=True, exist_ok=True)
+    backbone = load_backbone(config.backbone) if any(m in NETWORK_METHODS for m in methods) else None
+    start = time.perf_counter()
+    maps = reference_maps(pair, config, cache, methods, backbone, progress)
+    descriptions = None
+    if backbone is not None:
+        describer = PlaceMatcher(maps["lost"], config, backbone)
+        descriptions = query_descriptions(pair.query, describer, cache, config, progress)
+    log(f"described {len(pair.reference)} reference and {len(pair.query)} query frames "
+        f"in {time.perf_counter() - start:.1f} s (cache: {cache})")
+    runs: list[Run] = []
+    for method in methods:
+        results = single_results(method, pair, maps, config, descriptions, backbone, progress)
+        refmap = maps["thumbnail" if method == "thumbnail" else "lost"]
+        for run in runs_of(method, results, refmap, pair.query, config, backbone, modes):
+            run.evaluations = evaluate_tolerances(run.predictions, run.confidences, truths, run.candidates,
+                                                  higher_is_better=True)
+            runs.append(run)
+    return runs, truths

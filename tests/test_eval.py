@@ -1,0 +1,84 @@
+"""``lostx eval`` on the real RobotCar pair: every method and mode, the report, the plots, the cache."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import pytest
+
+from lostx.report import REQUIRED_KEYS
+
+from test_cli import assert_one_line_error, lostx
+
+
+@pytest.fixture(scope="module")
+def report(tmp_path_factory, robotcar):
+    out = tmp_path_factory.mktemp("eval") / "report"
+    proc = lostx("eval", "--reference", robotcar / "day", "--query", robotcar / "night", "--out", out,
+                 "--window", "3", "--quiet")
+    assert proc.returncode == 0, proc.stderr
+    return out, proc.stdout
+
+
+def entries(out) -> list[dict]:
+    return json.loads((out / "report.json").read_text())
+
+
+def find(rows, method, mode, tolerance):
+    (row,) = [r for r in rows if (r["method"], r["mode"], r["tolerance"]) == (method, mode, tolerance)]
+    return row
+
+
+def test_every_method_mode_and_tolerance_is_reported(report):
+    out, stdout = report
+    rows = entries(out)
+    assert len(rows) == 4 * 2 * 3
+    for row in rows:
+        assert set(REQUIRED_KEYS) <= set(row)
+        assert row["tolerance_unit"] == "frames" and row["n_queries"] == 10
+    assert "| lostx | single | 0 frames |" in (out / "report.md").read_text()
+    assert "| lostx | single |" in stdout
+
+
+def test_figures_match_the_single_frame_and_sequence_runs(report):
+    rows = entries(report[0])
+    # The same frames as tests/test_robotcar.py and test_localizer.py: 6 and 5 of 10 exact, all within one.
+    assert find(rows, "lostx", "single", 0.0)["recall_at_1"] == pytest.approx(0.6)
+    assert find(rows, "lostx", "single", 1.0)["recall_at_1"] == pytest.approx(1.0)
+    assert find(rows, "lostx", "sequence", 0.0)["recall_at_1"] == pytest.approx(0.5)
+    assert find(rows, "lostx", "single", 1.0)["recall_at_100p"] == pytest.approx(1.0)
+    # The verification earns its keep over the descriptor alone (measured: 30 % vs 60 % exact).
+    assert find(rows, "lost", "single", 0.0)["recall_at_1"] == pytest.approx(0.3)
+    assert find(rows, "thumbnail", "single", 0.0)["recall_at_1"] == pytest.approx(0.2)
+
+
+def test_plots_are_written(report):
+    out = report[0]
+    for name in ("pr_0frames.png", "pr_1frames.png", "pr_2frames.png", "max_f1_vs_tolerance.png"):
+        data = (out / name).read_bytes()
+        assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 20_000
+
+
+def test_rerunning_reuses_the_network_outputs(report, robotcar, tmp_path):
+    out = report[0]
+    copy = tmp_path / "again"
+    shutil.copytree(out / "cache", copy / "cache")
+    before = {p.name: p.stat().st_mtime_ns for p in (copy / "cache").rglob("*") if p.is_file()}
+    proc = lostx("eval", "--reference", robotcar / "day", "--query", robotcar / "night", "--out", copy,
+                 "--window", "3", "--quiet")
+    assert proc.returncode == 0, proc.stderr
+    after = {p.name: p.stat().st_mtime_ns for p in (copy / "cache").rglob("*") if p.is_file()}
+    assert after == before  # nothing rebuilt or rewritten
+    assert any(name.startswith("queries-") for name in after)
+    assert entries(copy) == entries(out)
+
+
+def test_mismatched_pair_is_a_one_line_error(robotcar, tmp_path):
+    short = tmp_path / "short"
+    short.mkdir()
+    for name in sorted(p.name for p in (robotcar / "night").iterdir())[:7]:
+        shutil.copy(robotcar / "night" / name, short / name)
+    proc = lostx("eval", "--reference", robotcar / "day", "--query", short, "--out", tmp_path / "r",
+                 "--format", "pairs")
+    assert_one_line_error(proc, "index-aligned")
