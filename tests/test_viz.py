@@ -128,10 +128,12 @@ def test_every_entity_has_one_time_point_per_frame(front):
     # The frame timestamps are a second timeline, in nanoseconds.
     stamps = [t for f, t in sorted(rec.times[e.CONFIDENCE], key=lambda r: r[0]) if f >= 0]  # -1: static styles
     assert np.allclose(stamps, [(T0 + 0.1 * i) * 1e9 for i in frames], rtol=0, atol=1e3)
-    # No sequence filter yet (None in every Estimate): nothing is logged for it rather than zeros.
-    assert all(est.sequence_score is None for _, est in seen)
-    assert not rec.has(e.SEQUENCE_SCORE) or "Scalars:scalars" not in rec.rows[e.SEQUENCE_SCORE]
-    assert not rec.has(e.SEQUENCE_WINDOW)
+    # The sequence filter's score, speed and window: every frame, as the Estimates say.
+    assert rec.column(e.SEQUENCE_SCORE, "Scalars:scalars").frames == frames
+    logged = [v[0] for v in rec.column(e.SEQUENCE_SCORE, "Scalars:scalars").values]
+    assert np.allclose(logged, [est.sequence_score for _, est in seen])
+    assert [v[0] for v in rec.column(e.SPEED, "Scalars:scalars").values] == [est.speed for _, est in seen]
+    assert rec.column(e.SEQUENCE_WINDOW, "Image:format").frames == frames
     # The map has no positions: no map entities.
     assert not any(entity.startswith("map") for entity in rec.rows)
     assert rec.blueprints, "the default layout travels in the file"
