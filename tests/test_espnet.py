@@ -71,26 +71,26 @@ def test_street_frame_labels(espnet, robotcar):
     houses = espnet.segment(read_image(robotcar / "day" / "0000048.png"))
     trees = espnet.segment(read_image(robotcar / "day" / "0000096.png"))
     assert houses.shape == (640, 1024)
-    # Measured: road 1.000, building 0.993 left and 0.981 right, vegetation 0.960.
+    # Measured: road 1.000, building 1.000 left and 0.974 right, vegetation 0.996.
     assert share(houses, *BOTTOM_CENTRE, ROAD) >= 0.98
     assert share(houses, *LEFT_SIDE, BUILDING) >= 0.97
-    assert share(houses, *RIGHT_SIDE, BUILDING) >= 0.96
-    assert share(trees, *UPPER_LEFT, VEGETATION) >= 0.94
+    assert share(houses, *RIGHT_SIDE, BUILDING) >= 0.95
+    assert share(trees, *UPPER_LEFT, VEGETATION) >= 0.97
 
 
 def test_semantic_frame_for_lost(espnet, robotcar):
     frame = espnet(read_image(robotcar / "day" / "0000048.png"))
-    assert frame.features.shape == (512, 32, 64) and frame.features.dtype == np.float32
-    assert frame.probs.shape == (20, 32, 64) and frame.probs.dtype == np.float32
+    assert frame.features.shape == (512, 24, 48) and frame.features.dtype == np.float32
+    assert frame.probs.shape == (20, 24, 48) and frame.probs.dtype == np.float32
     assert frame.probs.min() >= 0.0
     np.testing.assert_allclose(frame.probs.sum(axis=0), 1.0, atol=1e-5)
     labels = frame.labels()
-    # The grid labels agree with the full-resolution map: measured road 1.000, building 1.000 and 0.988.
+    # The grid labels agree with the full-resolution map: measured road 1.000, building 1.000 and 0.990.
     assert share(labels, *BOTTOM_CENTRE, ROAD) >= 0.98
     assert share(labels, *LEFT_SIDE, BUILDING) >= 0.97
     assert share(labels, *RIGHT_SIDE, BUILDING) >= 0.96
     info = espnet.info
-    assert (info.name, info.feature_dim, info.grid) == (NAME, 512, (32, 64))
+    assert (info.name, info.feature_dim, info.grid) == (NAME, 512, (24, 48))
     assert info.model_md5 == "3c52ff8b2629fa2370cff520a39985f2"
     assert info.class_names[:3] == ("road", "sidewalk", "building") and info.class_names[-1] == "background"
     assert info.default_classes == {"road": ("road",), "building": ("building",), "vegetation": ("vegetation",)}
@@ -100,7 +100,7 @@ def test_any_frame_size_gives_the_same_grid(espnet, robotcar):
     """Frames of other sizes are resized to the training resolution, so the grid never changes."""
     image = read_image(robotcar / "day" / "0000048.png")
     small = espnet(image[::2, ::2].copy())
-    assert small.features.shape == (512, 32, 64)
+    assert small.features.shape == (512, 24, 48)
     assert share(small.labels(), *BOTTOM_CENTRE, ROAD) >= 0.98
 
 
@@ -212,7 +212,7 @@ def espnet_map(tmp_path_factory, robotcar) -> Path:
 
 def test_cli_builds_and_matches_with_espnet(espnet_map, robotcar, tmp_path):
     backbone = json.loads((espnet_map / "manifest.json").read_text())["backbone"]
-    assert backbone["name"] == NAME and backbone["grid"] == [32, 64] and backbone["feature_dim"] == 512
+    assert backbone["name"] == NAME and backbone["grid"] == [24, 48] and backbone["feature_dim"] == 512
     out = tmp_path / "night.csv"
     proc = lostx("match", espnet_map, robotcar / "night", "--out", out, "--backbone", NAME, "--quiet")
     assert proc.returncode == 0, proc.stderr
@@ -220,7 +220,7 @@ def test_cli_builds_and_matches_with_espnet(espnet_map, robotcar, tmp_path):
     truth = np.arange(10)
     # Measured: ESPNetv2 is weak at night (MOSAIC: 6 exact, 10 within one).
     assert int((found == truth).sum()) == 2
-    assert int((np.abs(found - truth) <= 1).sum()) == 3
+    assert int((np.abs(found - truth) <= 1).sum()) == 6
 
 
 def test_cli_refuses_the_default_backbone_on_an_espnet_map(espnet_map, robotcar, tmp_path):
