@@ -12,9 +12,9 @@ checkpoint loads with ``strict=True``. In the paper's terms:
   dilated 3x3 convolutions on the same reduced map), hierarchical feature
   fusion (each branch adds the previous one's output), merge (BN + PReLU over
   the concatenation, grouped 1x1 expansion), residual and PReLU.
-* Decoder (the head the checkpoint holds, EdgeNets' refinement of the
-  paper's): bottom-up, from 1/16 to 1/2, four efficient pyramid pooling
-  blocks joined by gated skip connections from encoder levels 3, 2 and 1.
+* Decoder (the head this checkpoint holds, from the EdgeNets release):
+  bottom-up, from 1/16 to 1/2, four efficient pyramid pooling blocks joined
+  by gated skip connections from encoder levels 3, 2 and 1.
 
 LoST-X reads the last encoder level (512 channels at 1/16: the "conv5" of
 this net) and the decoder's 20 class scores (19 Cityscapes train ids and
@@ -61,7 +61,7 @@ REINFORCEMENT_WIDTH = 3
 
 INPUT_SIZE = (768, 384)
 """(width, height) every frame is resized to. Three quarters of the 1024 x 512 training resolution: the same
-day labels on RobotCar, far better night labels, half the time (docs/backbones.md)."""
+day labels on RobotCar, far better night labels, less than half the time (docs/backbones.md)."""
 HINT = "pass the ESPNetv2 Cityscapes weights with --model PATH"
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)
