@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 import lostx.core.espnet as espnet
-from bench_backbones import SCORINGS, day_night, network_time
+from bench_backbones import SCORINGS, cell, day_night, network_time
 from common import RESULTS, print_table, write_json
 from lostx.core import Config, load_backbone
 from lostx.core.config import BackboneConfig
@@ -66,7 +66,7 @@ def main() -> None:
                 "labels": {folder: {k: float(np.mean([s[k] for s in shares])) for k in REGIONS}
                            for folder, shares in labels.items()},
                 "network": network_time(backbone, frames["day"] + frames["night"], args.repeat),
-                "day_night": day_night(backbone, config),
+                "day_night": day_night(backbone, config, window=3),
             }
     finally:
         espnet.INPUT_SIZE = default
@@ -75,8 +75,9 @@ def main() -> None:
     for size, r in results.items():
         shares = [f"{r['labels'][folder][k]:.2f}" for folder in ("day", "night") for k in REGIONS]
         rows.append([size, "x".join(map(str, r["grid"])), *shares, r["network"]["median_ms"],
-                     *(f"{r['day_night'][s]['exact']} / {r['day_night'][s]['within_one']}" for s in SCORINGS)])
-    print_table("ESPNetv2 input size: label shares (day: road, bld L, bld R | night: same), ms, night -> day",
+                     *(cell(r["day_night"][s]["single"]) for s in SCORINGS)])
+    print_table("ESPNetv2 input size: label shares (day: road, bld L, bld R | night: same), ms, "
+                "night -> day single frame",
                 ["input", "grid", "d road", "d bldL", "d bldR", "n road", "n bldL", "n bldR", "median ms",
                  *SCORINGS], rows)
     write_json(args.out, {"benchmark": "espnet_input_size", "sizes": results})
