@@ -53,7 +53,8 @@ REPEATS = (3, 7)
 BRANCHES = 4
 """K: parallel dilated branches of every EESP unit."""
 RECEPTIVE_LIMITS = (13, 11, 9, 7)
-"""Largest effective kernel of an EESP branch at 1/4, 1/8 (strided), 1/8 and 1/16 (strided), 1/16."""
+"""Largest effective kernel of an EESP branch: in the strided units of levels 2 and 3, in level 3's units
+and level 4's strided unit, in level 4's units."""
 DECODER_WIDTHS = (64, 48, 32)
 PYRAMID_WIDTH = 10
 PYRAMID_SCALES = (2.0, 1.5, 1.0, 0.5, 0.1)
