@@ -80,6 +80,7 @@ BackboneFactory = Callable[[BackboneConfig, Path], Backbone]
 # Built-in backbones: name -> (default model file, "module:factory"), imported only when loaded.
 _BUILTIN: dict[str, tuple[str, str]] = {
     "mosaic-ade20k": ("mosaic-r4-ade20k31-uint8.tflite", "lostx.core.mosaic:MosaicBackbone"),
+    "espnetv2-cityscapes": ("espnetv2-s2.0-cityscapes-1024x512.pth", "lostx.core.espnet:ESPNetv2Backbone"),
 }
 _REGISTERED: dict[str, tuple[str, BackboneFactory]] = {}
 

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from lostx.core.errors import InputError
+from lostx.core.errors import InputError, MapError
 from lostx.core.estimate import Estimate
 from lostx.core.localizer import Localizer
 from lostx.core.refmap import ReferenceMap
@@ -47,6 +47,11 @@ def run(args: argparse.Namespace) -> int:
     refmap = ReferenceMap.open(args.map)
     if args.descriptor and args.descriptor != refmap.kind:
         raise InputError(f"{args.map} is a {refmap.kind} map, not {args.descriptor}")
+    built_with = (refmap.backbone or {}).get("name")
+    if args.backbone and refmap.kind == "lost" and args.backbone != built_with:
+        # Without --backbone the matcher takes the map's own; a different one named explicitly is a mistake.
+        raise MapError(f"{args.map} was built with backbone {built_with}, but --backbone asks for {args.backbone}; "
+                       f"use --backbone {built_with} (or leave it out) or rebuild the map")
     camera = {"front": "rear", "rear": "front"}[refmap.camera] if args.opposite else refmap.camera
     queries = folder_traverse(args.queries, camera=camera, mirror=args.mirror)  # type: ignore[arg-type]
     localizer = Localizer(refmap, config)
