@@ -104,7 +104,7 @@ def build_map(
                 for frame, described, mu in _windowed(_ticking(frames, bar), describer, config.lost.reference_window):
                     writer.add(
                         MapFrame(frame.name, describer.descriptor(described, mu), described.evidence,
-                                 described.appearance, frame.position, frame.timestamp)
+                                 described.appearance(), frame.position, frame.timestamp)
                     )
             else:
                 for frame in _ticking(frames, bar):

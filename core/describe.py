@@ -25,7 +25,10 @@ class DescribedFrame:
     means: np.ndarray  # (G, D): this frame's own mu_s (Eq. 2)
     present: np.ndarray  # (G,) bool: class s occurs in the frame
     evidence: KeypointEvidence
-    appearance: np.ndarray  # (D,) GeM-pooled features: the appearance baseline
+
+    def appearance(self) -> np.ndarray:
+        """(D,) GeM-pooled features: the appearance baseline (computed on request, not in the live path)."""
+        return gem_pool(self.features)
 
 
 class LostDescriber:
@@ -58,7 +61,6 @@ class LostDescriber:
             means=means,
             present=present,
             evidence=frame_evidence(semantic.features, labels.reshape(h, w)),
-            appearance=gem_pool(features),
         )
 
     def descriptor(self, frame: DescribedFrame, means: np.ndarray) -> np.ndarray:

@@ -41,7 +41,8 @@ class Evidence:
     query_labels: np.ndarray | None = None
     """(h, w) uint8 grouped semantic labels of the query (not mirrored)."""
     correspondences: dict[int, Correspondences] = field(default_factory=dict)
-    """Surviving keypoint correspondences per candidate reference index."""
+    """Surviving keypoint correspondences with the answer and with the single-frame best,
+    by reference index."""
     grid: tuple[int, int] | None = None
     """(h, w) feature grid the keypoint coordinates refer to."""
     sequence_window: np.ndarray | None = None

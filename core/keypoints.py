@@ -33,7 +33,9 @@ class KeypointEvidence:
     Slot r is the distinct keypoint location ``slot_keys[r] = c * N + location``
     of frame c (sorted); its feature vector is sparse: channels
     ``channels[slot_offsets[r]:slot_offsets[r + 1]]`` hold ``values[...]``, the
-    other channels are zero.
+    other channels are zero. A live query keeps its slots dense instead
+    (``dense``; the sparse arrays are then empty): verification reads them densely,
+    and :meth:`sparse` converts where they are stored.
     """
 
     keypoints: np.ndarray  # (C, D) int32, -1 = no keypoint
@@ -45,6 +47,7 @@ class KeypointEvidence:
     slot_norms: np.ndarray  # (S,) float32 L2 norm of each slot's feature vector
     grid: tuple[int, int]
     feature_dim: int
+    dense: np.ndarray | None = None  # (S, D) float32 slot features, for evidence kept dense
 
     @property
     def n_frames(self) -> int:
@@ -61,13 +64,24 @@ class KeypointEvidence:
 
     def dense_slots(self) -> np.ndarray:
         """(S, D) float32 feature vectors of all slots."""
+        if self.dense is not None:
+            return self.dense
         dense = np.zeros((len(self.slot_keys), self.feature_dim), dtype=np.float32)
         rows = np.repeat(np.arange(len(self.slot_keys)), np.diff(self.slot_offsets))
         dense[rows, self.channels] = self.values
         return dense
 
+    def sparse(self) -> "KeypointEvidence":
+        """The same evidence with its slot features in compressed sparse rows."""
+        if self.dense is None:
+            return self
+        offsets, channels, values = sparse_slots(self.dense)
+        return KeypointEvidence(self.keypoints, self.labels, self.slot_keys, offsets, channels, values,
+                                self.slot_norms, self.grid, self.feature_dim)
+
     @classmethod
     def stack(cls, frames: list["KeypointEvidence"]) -> "KeypointEvidence":
+        frames = [f.sparse() for f in frames]
         n = frames[0].n_locations
         entries = np.cumsum([0] + [len(f.channels) for f in frames])
         return cls(
@@ -100,16 +114,17 @@ def frame_evidence(features: np.ndarray, labels: np.ndarray) -> KeypointEvidence
     flat = features.reshape(d, h * w)
     keypoints = argmax_keypoints(flat)
     slots = np.unique(keypoints[keypoints >= 0]).astype(np.int64)
-    dense = np.take(flat, slots, axis=1).T
-    offsets, channels, values = sparse_slots(dense)
+    dense = np.ascontiguousarray(np.take(flat, slots, axis=1).T, dtype=np.float32)
+    empty = np.zeros(0)
     return KeypointEvidence(
         keypoints=keypoints[None],
         labels=labels.reshape(1, h * w).astype(np.uint8),
         slot_keys=slots,
-        slot_offsets=offsets,
-        channels=channels,
-        values=values,
+        slot_offsets=np.zeros(len(slots) + 1, dtype=np.int64),
+        channels=empty.astype(np.int32),
+        values=empty.astype(np.float32),
         slot_norms=np.linalg.norm(dense, axis=1).astype(np.float32),
         grid=(h, w),
         feature_dim=d,
+        dense=dense,
     )

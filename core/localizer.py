@@ -180,16 +180,19 @@ class Localizer:
         )
 
     def _evidence(self, result: MatchResult, index: int, opposite: bool) -> Evidence:
+        """What it takes to draw the answer (and the single-frame best): their correspondences."""
         correspondences = {}
-        if result.correspondences is not None:
-            correspondences = {int(c): corr for c, corr in zip(result.candidates, result.correspondences)}
-            if index not in correspondences and self.matcher.last_evidence is not None:
-                # The sequence answer was not among the verified candidates: verify it too, to draw it.
-                distance = float(result.distances[0]) if len(result.distances) else 1.0
-                extra = verify(self.matcher.last_evidence, self.map.evidence([index]), np.array([distance]),
-                               opposite=opposite, scoring=self.config.verify.scoring,
-                               density=self.config.verify.density_filter)
-                correspondences[index] = extra.correspondences(0)
+        if result.verification is not None:
+            for reference in dict.fromkeys((index, result.best)):
+                corr = result.correspondences_for(reference)
+                if corr is None and self.matcher.last_evidence is not None:
+                    # The sequence answer was not among the verified candidates: verify it too, to draw it.
+                    distance = float(result.distances[0]) if len(result.distances) else 1.0
+                    extra = verify(self.matcher.last_evidence, self.map.evidence([reference]), np.array([distance]),
+                                   opposite=opposite, scoring=self.config.verify.scoring,
+                                   density=self.config.verify.density_filter)
+                    corr = extra.correspondences(0)
+                correspondences[reference] = corr
         return Evidence(query_labels=result.query_labels, correspondences=correspondences,
                         grid=getattr(self.map, "grid", None))
 

@@ -19,7 +19,7 @@ from .lost import RunningStandardiser
 from .refmap import ReferenceMap
 from .search import cosine_distances, sad_distances, top_k
 from .thumbnail import ThumbnailDescriber
-from .verify import Correspondences, verify
+from .verify import Correspondences, Verification, verify
 
 
 @dataclass
@@ -32,8 +32,8 @@ class QueryDescription:
 
     descriptor: np.ndarray
     """Raw LoST descriptor L (Eq. 1-3), before normalisation."""
-    appearance: np.ndarray
-    """GeM-pooled network features (the appearance baseline)."""
+    appearance: np.ndarray | None
+    """GeM-pooled network features (the appearance baseline), when asked for."""
     evidence: KeypointEvidence
     labels: np.ndarray
     """(h, w) grouped semantic labels."""
@@ -57,8 +57,10 @@ class MatchResult:
     ``uniqueness_exclusion`` reference frames away from the match (1 when there is none)."""
     n_matches: np.ndarray | None = None
     """(k,) keypoint correspondences that survived verification."""
-    correspondences: list[Correspondences] | None = None
-    """Per candidate, in the same order."""
+    verification: Verification | None = None
+    """The verification of the shortlist (rows in ``shortlist`` order)."""
+    shortlist: np.ndarray | None = None
+    """Reference index of each verification row."""
     query_labels: np.ndarray | None = None
     """(h, w) grouped semantic labels of the query."""
     timings: dict[str, float] = field(default_factory=dict)
@@ -71,6 +73,13 @@ class MatchResult:
     @property
     def best(self) -> int:
         return int(self.candidates[0])
+
+    def correspondences_for(self, reference: int) -> Correspondences | None:
+        """The surviving keypoint correspondences with a verified candidate (None if it was not verified)."""
+        if self.verification is None or self.shortlist is None:
+            return None
+        rows = np.flatnonzero(self.shortlist == reference)
+        return self.verification.correspondences(int(rows[0])) if len(rows) else None
 
     @property
     def score(self) -> float:
@@ -139,8 +148,9 @@ class PlaceMatcher:
             return self._match_thumbnail(image, opposite)
         return self.match_description(self.describe(image), opposite)
 
-    def describe(self, image: np.ndarray) -> QueryDescription:
-        """Run the network on a LoST query frame (the expensive, cacheable half of :meth:`match`)."""
+    def describe(self, image: np.ndarray, appearance: bool = False) -> QueryDescription:
+        """Run the network on a LoST query frame (the expensive, cacheable half of :meth:`match`);
+        ``appearance`` also pools the GeM descriptor of the appearance baseline."""
         describer = self.describer
         assert isinstance(describer, LostDescriber)
         t0 = time.perf_counter()
@@ -149,7 +159,7 @@ class PlaceMatcher:
         frame = describer.from_semantic(semantic)
         raw = describer.descriptor(frame, self.means(frame))
         t2 = time.perf_counter()
-        return QueryDescription(raw, frame.appearance, frame.evidence, frame.labels,
+        return QueryDescription(raw, frame.appearance() if appearance else None, frame.evidence, frame.labels,
                                 {"network": t1 - t0, "descriptor": t2 - t1})
 
     def _match_thumbnail(self, image: np.ndarray, opposite: bool) -> MatchResult:
@@ -200,7 +210,8 @@ class PlaceMatcher:
             scores=scores,
             confidence=uniqueness(candidates, scores, cfg.uniqueness_exclusion),
             n_matches=result.n_matches[rank],
-            correspondences=[result.correspondences(int(c)) for c in rank],
+            verification=result,
+            shortlist=shortlist,
             query_labels=query.labels,
             timings=timings,
             map_scores=map_scores(distances, shortlist, result.scores, cfg.scoring),

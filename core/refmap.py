@@ -179,6 +179,7 @@ def _backbone_dict(info: BackboneInfo | None) -> dict[str, Any] | None:
 
 def _pack_evidence(frames: list[KeypointEvidence], backbone: BackboneInfo | None) -> dict[str, np.ndarray]:
     quant = backbone.feature_quantisation if backbone else None
+    frames = [f.sparse() for f in frames]
     values = np.concatenate([f.values for f in frames])
     if quant is not None:
         stored = np.rint(values / quant.scale + quant.zero_point)

@@ -152,13 +152,17 @@ def pair_similarity(
     """
     q_rows = query.slot_rows(0, q_loc)
     r_rows = refs.slot_rows(cand, r_loc)
-    query_unit = l2_normalise(query.dense_slots())
+    query_unit = l2_normalise(query.dense_slots()).ravel()
     starts = refs.slot_offsets[r_rows]
     lengths = refs.slot_offsets[r_rows + 1] - starts
-    pair = np.repeat(np.arange(len(r_rows)), lengths)
-    entry = np.arange(int(lengths.sum())) + np.repeat(starts - (np.cumsum(lengths) - lengths), lengths)
-    picked = query_unit.ravel()[q_rows[pair] * refs.feature_dim + refs.channels[entry]]
-    dots = np.bincount(pair, picked * refs.values[entry], minlength=len(r_rows))
+    bounds = np.cumsum(lengths) - lengths  # where each pair's products begin
+    entry = np.arange(int(lengths.sum())) + np.repeat(starts - bounds, lengths)
+    picked = query_unit[np.repeat(q_rows * refs.feature_dim, lengths) + refs.channels[entry]]
+    products = picked * refs.values[entry]
+    dots = np.zeros(len(r_rows), dtype=np.float64)
+    filled = lengths > 0  # an all-zero slot (possible with signed features) has dot product 0
+    if filled.any():
+        dots[filled] = np.add.reduceat(products, bounds[filled])
     slot_norm = refs.slot_norms[r_rows]
     return np.where(slot_norm > 0, dots / np.maximum(slot_norm, 1e-30), 0.0)
 

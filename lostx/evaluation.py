@@ -127,7 +127,7 @@ def query_descriptions(traverse: Traverse, matcher: PlaceMatcher, cache: Path, c
     out = []
     for frame in tqdm(traverse, total=len(traverse), desc="describing queries", unit="frame",
                       disable=not progress, leave=False):
-        out.append(matcher.describe(frame.image))
+        out.append(matcher.describe(frame.image, appearance=True))
     _save_descriptions(path, out)
     return out
 

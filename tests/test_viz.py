@@ -22,6 +22,7 @@ from lostx.core.config import Config  # noqa: E402
 from lostx.core.estimate import Estimate  # noqa: E402
 from lostx.core.frame import Frame  # noqa: E402
 from lostx.core.localizer import Localizer  # noqa: E402
+from lostx.core.verify import verify  # noqa: E402
 from lostx.core.refmap import ReferenceMap  # noqa: E402
 from lostx.replay.folder import folder_traverse  # noqa: E402
 from lostx.viz import entities as e  # noqa: E402
@@ -243,8 +244,8 @@ def test_the_map_shows_route_estimate_and_truth(day_map, robotcar, tmp_path):
 
 
 def test_the_sequence_window_is_drawn_when_the_estimate_has_one(day_map, robotcar, tmp_path):
-    # The sequence filter is not in the Localizer yet: hand the sink estimates that carry a window,
-    # as the filter will (rows oldest first, k candidates each, inf where empty).
+    # Hand the sink estimates with a window of known content (rows oldest first, a reference index per
+    # cell, inf where empty) and an answer, reference 2, that only the first frame verified.
     localizer = Localizer(day_map, Config())
     frames = list(folder_traverse(robotcar / "night"))[:2]
     out = tmp_path / "seq.rrd"
@@ -255,8 +256,11 @@ def test_the_sequence_window_is_drawn_when_the_estimate_has_one(day_map, robotca
         window = np.array([[0.2, 0.5, np.inf], [0.1, 0.4, 0.3], [0.3, 0.2, 0.6]])
         cands = np.array([[0, 3, -1], [1, 4, 2], [2, 1, 5]])
         est.evidence.sequence_window, est.evidence.sequence_candidates = window, cands
-        if frame.id == 1:  # the filter's answer is not among this frame's verified candidates
-            del est.evidence.correspondences[2]
+        if frame.id == 0:
+            verified = verify(localizer.matcher.last_evidence, day_map.evidence([2]), np.array([0.5]))
+            est.evidence.correspondences = {2: verified.correspondences(0)}
+        else:  # the filter's answer is not among this frame's verified candidates
+            est.evidence.correspondences = {}
         est = dataclasses.replace(est, sequence_score=0.2 + frame.id, speed=1.0, match_index=2, window=3)
         sink(frame, est)
         windows.append(est)
