@@ -23,16 +23,21 @@ def list_images(folder: str | Path) -> list[Path]:
     return files
 
 
-def read_image(path: str | Path) -> np.ndarray:
-    """An RGB uint8 H x W x 3 frame; greyscale files are replicated to three channels."""
+def decode_file(path: str | Path, flags: int = cv2.IMREAD_COLOR) -> np.ndarray:
+    """The image in a file, decoded by OpenCV with ``flags`` (BGR order), or an error naming the file."""
     path = Path(path)
     data = np.fromfile(path, dtype=np.uint8) if path.is_file() else None
     if data is None:
         raise ImageError(f"cannot read image {path}: no such file")
-    image = cv2.imdecode(data, cv2.IMREAD_COLOR) if data.size else None
+    image = cv2.imdecode(data, flags) if data.size else None
     if image is None:
         raise ImageError(f"cannot read image {path}: not a decodable image ({data.size} bytes)")
-    return np.ascontiguousarray(image[:, :, ::-1])
+    return image
+
+
+def read_image(path: str | Path) -> np.ndarray:
+    """An RGB uint8 H x W x 3 frame; greyscale files are replicated to three channels."""
+    return np.ascontiguousarray(decode_file(path)[:, :, ::-1])
 
 
 def check_frame(image: object, where: str = "frame") -> np.ndarray:

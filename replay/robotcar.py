@@ -35,6 +35,7 @@ import numpy as np
 
 from lostx.core.errors import ImageError, InputError
 from lostx.core.frame import Camera
+from lostx.core.images import decode_file
 
 from .folder import Traverse
 from .positions import latlon_to_local
@@ -78,12 +79,7 @@ def demosaic(raw: np.ndarray, pattern: str) -> np.ndarray:
 
 def load_bayer_image(path: Path, pattern: str) -> np.ndarray:
     """Read a RobotCar image: demosaic a raw single-channel file, pass a colour file through as RGB."""
-    data = np.fromfile(path, dtype=np.uint8) if path.is_file() else None
-    if data is None:
-        raise ImageError(f"cannot read image {path}: no such file")
-    image = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
-    if image is None:
-        raise ImageError(f"cannot read image {path}: not a decodable image ({data.size} bytes)")
+    image = decode_file(path, cv2.IMREAD_UNCHANGED)
     if image.ndim == 2:
         return demosaic(image, pattern)
     if image.ndim == 3 and image.shape[2] in (3, 4):

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import time
 from dataclasses import dataclass, field
 from typing import Callable
@@ -10,42 +12,39 @@ from tqdm import tqdm
 
 from lostx.replay.pace import FrameSource, Pace, paced
 
-from .producer import FramePublisher
+from .producer import FramePublisher, PublisherCounts
 
 
 @dataclass
 class ReplaySummary:
     frames: int = 0
     """Frames taken from the traverse (all laps)."""
-    sent: int = 0
-    dropped: int = 0
-    acked: int = 0
-    resent: int = 0
-    refused: int = 0
+    counts: PublisherCounts = field(default_factory=PublisherCounts)
+    """What the publisher sent, dropped, had answered, resent and had refused."""
     laps: int = 0
     seconds: float = 0.0
     mode: str = ""
-    sessions: list[str] = field(default_factory=list)
     errors: list[str] = field(default_factory=list)
     unanswered: int = 0
     interrupted: bool = False
 
     def line(self) -> str:
-        rate = self.sent / self.seconds if self.seconds > 0 else 0.0
-        parts = [f"sent {self.sent} of {self.frames} frames in {self.seconds:.1f} s ({rate:.1f} frames/s)",
+        c = self.counts
+        rate = c.sent / self.seconds if self.seconds > 0 else 0.0
+        parts = [f"sent {c.sent} of {self.frames} frames in {self.seconds:.1f} s ({rate:.1f} frames/s)",
                  f"{self.mode} service"]
         if self.mode == "lossless":
-            parts.append(f"{self.acked} answered")
+            parts.append(f"{c.acked} answered")
             if self.unanswered:
                 parts.append(f"{self.unanswered} NOT answered")
-        if self.dropped:
-            parts.append(f"{self.dropped} dropped (service busy or absent)")
-        if self.resent:
-            parts.append(f"{self.resent} resent")
-        if self.refused:
-            parts.append(f"{self.refused} refused: {self.errors[-1] if self.errors else ''}")
-        if len(self.sessions) > 1:
-            parts.append(f"the service restarted {len(self.sessions) - 1} time(s)")
+        if c.dropped:
+            parts.append(f"{c.dropped} dropped (service busy or absent)")
+        if c.resent:
+            parts.append(f"{c.resent} resent")
+        if c.refused:
+            parts.append(f"{c.refused} refused: {self.errors[-1] if self.errors else ''}")
+        if len(c.sessions) > 1:
+            parts.append(f"the service restarted {len(c.sessions) - 1} time(s)")
         if self.interrupted:
             parts.append("interrupted")
         return "; ".join(parts)
@@ -89,9 +88,7 @@ def replay(
         bar.close()
         counts = publisher.counts
         summary.seconds = time.perf_counter() - start
-        summary.sent, summary.dropped, summary.acked = counts.sent, counts.dropped, counts.acked
-        summary.resent, summary.refused = counts.resent, counts.refused
-        summary.sessions = list(counts.sessions)
+        summary.counts = dataclasses.replace(counts, sessions=list(counts.sessions))
         summary.errors = [f"frame {e.frame_id}: {e.code}: {e.text}" for e in publisher.errors]
         summary.unanswered = publisher.in_flight
         summary.mode = publisher.ready.mode if publisher.ready else summary.mode

@@ -77,7 +77,7 @@ def _fake_frames(n: int, rng: np.random.Generator) -> tuple[list[Frame], list[De
     for i in range(n):
         present = rng.random(2) > 0.3
         means = rng.random((2, 3)).astype(np.float32) * present[:, None]
-        described.append(DescribedFrame(None, None, None, means, present, None, None))  # type: ignore[arg-type]
+        described.append(DescribedFrame(None, None, None, means, present, None))  # type: ignore[arg-type]
         frames.append(Frame(id=i, image=np.full((1, 1, 3), i, np.uint8)))
     return frames, described
 
