@@ -14,6 +14,8 @@ The machine is shared, so the load average before and after is recorded.
 
 from __future__ import annotations
 
+import common  # noqa: F401  (first: it limits numpy's BLAS threads before numpy loads)
+
 import argparse
 import dataclasses
 import itertools

@@ -12,6 +12,8 @@ tensors of their shapes (2048 channels on a 20 x 31 grid, 20 classes).
 
 from __future__ import annotations
 
+import common  # noqa: F401  (first: it limits numpy's BLAS threads before numpy loads)
+
 import argparse
 import tempfile
 from pathlib import Path

@@ -15,6 +15,8 @@ tracker.
 
 from __future__ import annotations
 
+import common  # noqa: F401  (first: it limits numpy's BLAS threads before numpy loads)
+
 import argparse
 import tempfile
 from pathlib import Path

@@ -24,6 +24,8 @@ Per encoding:
 
 from __future__ import annotations
 
+import common  # noqa: F401  (first: it limits numpy's BLAS threads before numpy loads)
+
 import argparse
 import dataclasses
 import os

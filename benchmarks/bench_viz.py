@@ -35,6 +35,8 @@ Modes:
 
 from __future__ import annotations
 
+import common  # noqa: F401  (first: it limits numpy's BLAS threads before numpy loads)
+
 import argparse
 import dataclasses
 import json

@@ -2,12 +2,16 @@
 
 from __future__ import annotations
 
-import json
-import platform
-import statistics
-import time
-from pathlib import Path
-from typing import Any, Callable
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # as the lostx command does (lostx/cli.py)
+
+import json  # noqa: E402
+import platform  # noqa: E402
+import statistics  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+from typing import Any, Callable  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 

@@ -13,6 +13,8 @@ and the night -> day single-frame result for each scoring.
 
 from __future__ import annotations
 
+import common  # noqa: F401  (first: it limits numpy's BLAS threads before numpy loads)
+
 import argparse
 from pathlib import Path
 
