@@ -117,7 +117,7 @@ def test_live_mode_answers_the_newest_frame_and_counts_the_dropped(day_map, robo
     assert final.answered == len(ids)
     assert final.dropped == final.received - final.answered > 0
     # Frames the producer could not even send (its queue full) arrive nowhere: the service sees the gaps.
-    assert final.received + final.missing == 10 and final.missing == sent.dropped
+    assert final.received + final.missing == 10 and final.missing == sent.counts.dropped
 
 
 def test_lossless_nordland_every_frame_once_in_order_with_a_slow_listener(thumb_map, nordland, procs, tmp_path):
