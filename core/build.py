@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import time
 from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
@@ -12,7 +13,7 @@ from tqdm import tqdm
 
 from .config import Config
 from .describe import DescribedFrame, LostDescriber
-from .errors import LostxError, MapError
+from .errors import MapError
 from .frame import Frame
 from .lost import centred_window, window_means
 from .refmap import MapFrame, MapWriter
@@ -80,8 +81,6 @@ def build_map(
     :class:`ThumbnailDescriber` (a map of SeqSLAM thumbnails). Any error while
     reading or describing a frame aborts the build and leaves no map behind.
     """
-    import time
-
     config = config or Config()
     if describer is None:
         from .backbone import load_backbone
@@ -115,10 +114,7 @@ def build_map(
         if not writer.frames:
             raise MapError("the traverse has no frames; nothing to build")
         path = writer.commit()
-    from .refmap import ReferenceMap
-
-    size = ReferenceMap.open(path).nbytes
-    return BuildSummary(path=path, n_frames=len(writer.frames), seconds=time.perf_counter() - start, bytes=size)
+    return BuildSummary(path=path, n_frames=len(writer.frames), seconds=time.perf_counter() - start, bytes=writer.nbytes)
 
 
 def _ticking(frames: Iterable[Frame], bar: tqdm) -> Iterable[Frame]:
@@ -126,5 +122,3 @@ def _ticking(frames: Iterable[Frame], bar: tqdm) -> Iterable[Frame]:
         yield frame
         bar.update(1)
 
-
-__all__ = ["BuildSummary", "build_map", "LostxError"]

@@ -48,7 +48,7 @@ from .images import check_frame
 from .matcher import MatchResult, PlaceMatcher
 from .refmap import ReferenceMap
 from .search import top_k
-from .sequence import ReferenceNormaliser, SequenceFilter, SequenceResult, contrast_normalise
+from .sequence import ReferenceNormaliser, SequenceFilter, contrast_normalise
 from .tracker import RouteTracker
 from .verify import verify
 
@@ -210,5 +210,3 @@ def _candidates(result: MatchResult) -> list[Candidate]:
         for i, (c, d, s) in enumerate(zip(result.candidates, result.distances, result.scores))
     ]
 
-
-__all__ = ["Localizer", "SequenceResult"]

@@ -2,17 +2,16 @@
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass, field
-from typing import Iterable, Iterator
 
 import numpy as np
 
 from .backbone import Backbone, load_backbone
-from .config import BackboneConfig, Config
+from .config import BackboneConfig, Config, LostConfig
 from .describe import LostDescriber, TrailingMeans
 from .errors import MapError
-from .frame import Frame
 from .images import check_frame
 from .keypoints import KeypointEvidence
 from .lost import RunningStandardiser
@@ -240,13 +239,6 @@ def map_scores(distances: np.ndarray, shortlist: np.ndarray, verified: np.ndarra
     return scores
 
 
-def _with_classes(config, classes: dict) -> "object":
-    import dataclasses
-
+def _with_classes(config: LostConfig, classes: dict[str, list[str]]) -> LostConfig:
+    """The LoST settings with the classes a map was built with."""
     return dataclasses.replace(config, classes={k: tuple(v) for k, v in classes.items()})
-
-
-def match_frames(matcher: PlaceMatcher, frames: Iterable[Frame], opposite: bool = False) -> Iterator[tuple[Frame, MatchResult]]:
-    """Match a traverse frame by frame, in order (the normalisation is causal)."""
-    for frame in frames:
-        yield frame, matcher.match(frame.image, opposite=opposite)

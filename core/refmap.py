@@ -91,6 +91,8 @@ class MapWriter:
         self.backbone = backbone
         self.overwrite = overwrite
         self.frames: list[MapFrame] = []
+        self.nbytes = 0
+        """Bytes of the committed map's files."""
         self._tmp = self.out.parent / f".{self.out.name}.partial-{os.getpid()}"
 
     def __enter__(self) -> "MapWriter":
@@ -113,6 +115,7 @@ class MapWriter:
         try:
             arrays = self._arrays()
             files = {name: _write_array(self._tmp / f"{name}.npy", array) for name, array in arrays.items()}
+            self.nbytes = sum(entry["bytes"] for entry in files.values())
             manifest = {
                 "format": MAP_FORMAT,
                 "version": MAP_VERSION,
@@ -193,13 +196,13 @@ def _pack_evidence(frames: list[KeypointEvidence], backbone: BackboneInfo | None
     first_slot = np.cumsum([0] + [len(f.slot_keys) for f in frames])
     slot_of_entry = slot_of_entry + np.repeat(first_slot[:-1], [len(f.channels) for f in frames])
     counts = np.bincount(slot_of_entry[keep], minlength=first_slot[-1])
-    per_frame = np.add.reduceat(counts, first_slot[:-1]) if len(counts) else np.zeros(len(frames), int)
-    per_frame[np.diff(first_slot) == 0] = 0
+    # Frame n's entries start after those of every slot before its first one.
+    frame_entries = np.concatenate([[0], np.cumsum(counts)])[first_slot]
     return {
         "keypoints": np.concatenate([f.keypoints for f in frames]).astype(np.int16),
         "labels": np.concatenate([f.labels for f in frames]).astype(np.uint8),
         "frame_slots": first_slot.astype(np.int64),
-        "frame_entries": np.concatenate([[0], np.cumsum(per_frame)]).astype(np.int64),
+        "frame_entries": frame_entries.astype(np.int64),
         "slot_locations": np.concatenate([f.slot_keys for f in frames]).astype(np.uint16),
         "slot_counts": counts.astype(np.uint16),
         "slot_norms": np.concatenate([f.slot_norms for f in frames]).astype(np.float32),
