@@ -40,7 +40,7 @@ def build_cycled_map(out: Path, describer: LostDescriber, frames: int, rng: np.r
         for i in range(frames):
             d = described[i % len(described)]
             desc = describer.descriptor(d, d.means) + rng.normal(0, 0.01, d.means.size).astype(np.float32)
-            writer.add(MapFrame(f"{i:06d}.png", desc, d.evidence))
+            writer.add(MapFrame(f"{i:06d}.png", desc, d.evidence, d.appearance()))
         writer.commit()
     return ReferenceMap.open(out)
 
