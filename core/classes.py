@@ -8,6 +8,7 @@ label space is the groups followed by every model class in no group.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import Mapping, Sequence
 
@@ -70,7 +71,23 @@ class ClassGroups:
     def group(self, probs: np.ndarray) -> np.ndarray:
         """(C, h, w) model probabilities -> (S, h, w) grouped probabilities; the first G are the groups."""
         c, h, w = probs.shape
-        return (self.matrix @ probs.reshape(c, h * w)).reshape(-1, h, w)
+        flat = probs.reshape(c, h * w)
+        out = np.empty((len(self.matrix), h * w), dtype=flat.dtype)
+        # Element-wise sums of the members, not a BLAS product: the same bits at any BLAS thread count.
+        single_rows, single_classes, multi = self._layout
+        out[single_rows] = flat[single_classes]
+        for s, members in multi:
+            out[s] = flat[members].sum(axis=0)
+        return out.reshape(-1, h, w)
+
+    @functools.cached_property
+    def _layout(self) -> tuple[np.ndarray, np.ndarray, list[tuple[int, np.ndarray]]]:
+        """Rows that copy one model class (row, class), and rows that sum several (row, classes)."""
+        members = [np.flatnonzero(row) for row in self.matrix]
+        single = [(s, m[0]) for s, m in enumerate(members) if len(m) == 1]
+        multi = [(s, m) for s, m in enumerate(members) if len(m) > 1]
+        rows, classes = (np.array(v, dtype=np.int64) for v in zip(*single)) if single else (np.zeros(0, np.int64),) * 2
+        return rows, classes, multi
 
     def spec(self) -> dict[str, list[str]]:
         return {name: list(members) for name, members in zip(self.names, self.members)}

@@ -7,6 +7,11 @@ mu_s the mean feature of the locations labelled s (Eq. 2), and
     L_s = sum_i m_is |mu_s - x_i|        (Eq. 1, |.| element-wise)
 
 The descriptor L concatenates the L2-normalised L_s of the descriptor classes.
+
+Sums run in numpy's own loops (``np.einsum`` without ``optimize``), never in
+BLAS: a threaded BLAS splits a product differently for each thread count, and
+the same frame would get a descriptor that differs in its last bits between
+processes (so would every answer that depends on it).
 """
 
 from __future__ import annotations
@@ -32,7 +37,7 @@ def class_means(features: np.ndarray, labels: np.ndarray, n_groups: int) -> tupl
     """
     onehot = (labels[None, :] == np.arange(n_groups)[:, None]).astype(features.dtype)  # (G, N)
     count = onehot.sum(axis=1)
-    mu = (features @ onehot.T).T / np.maximum(count, 1.0)[:, None]
+    mu = np.einsum("dn,gn->gd", features, onehot) / np.maximum(count, 1.0)[:, None]
     return mu.astype(np.float32), count > 0
 
 
@@ -71,7 +76,7 @@ def lost_descriptor(features: np.ndarray, group_probs: np.ndarray, mu: np.ndarra
         for s in range(len(mu)):
             np.subtract(block, mu[s, start : start + _BLOCK, None], out=tmp)
             np.abs(tmp, out=tmp)
-            per_class[s, start : start + _BLOCK] = tmp @ group_probs[s]  # L_s = sum_i m_is |mu_s - x_i|
+            per_class[s, start : start + _BLOCK] = np.einsum("dn,n->d", tmp, group_probs[s])  # L_s = sum_i m_is |mu_s - x_i|
     return l2_normalise(per_class).reshape(-1).astype(np.float32)
 
 

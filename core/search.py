@@ -19,8 +19,12 @@ def top_k(distances: np.ndarray, k: int) -> np.ndarray:
 
 
 def cosine_distances(query: np.ndarray, refs: np.ndarray) -> np.ndarray:
-    """1 - cos between a unit query (K,) and unit reference descriptors (N, K)."""
-    return 1.0 - refs @ query
+    """1 - cos between a unit query (K,) and unit reference descriptors (N, K).
+
+    numpy's own loop, not BLAS: a threaded BLAS sums in an order that depends on its thread
+    count, and the same query would get other last bits (and a tie another winner) in a
+    process with another ``OPENBLAS_NUM_THREADS``."""
+    return 1.0 - np.einsum("nk,k->n", refs, query)
 
 
 def sad_distances(query: np.ndarray, refs: np.ndarray, chunk: int = 1024) -> np.ndarray:
