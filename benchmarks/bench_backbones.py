@@ -27,7 +27,7 @@ import numpy as np
 
 from common import RESULTS, print_table, summary, time_call, write_json
 from lostx.core import Config, Localizer, LostDescriber, ReferenceMap, backbone_names, build_map, load_backbone
-from lostx.core.backbone import Backbone
+from lostx.core.backbones import Backbone
 from lostx.core.config import BackboneConfig, SequenceConfig, VerifyConfig
 from lostx.core.paths import data_dir
 from lostx.replay.folder import folder_traverse

@@ -49,7 +49,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from lostx.core.backbone import load_backbone
+from lostx.core.backbones import load_backbone
 from lostx.core.build import build_map
 from lostx.core.config import Config
 from lostx.core.describe import LostDescriber

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-import lostx.core.espnet as espnet
+import lostx.core.backbones.espnet as espnet
 from bench_backbones import SCORINGS, cell, day_night, network_time
 from common import RESULTS, print_table, write_json
 from lostx.core import Config, load_backbone

@@ -5,7 +5,7 @@ The main entry points::
     from lostx.core import Config, ReferenceMap, Localizer, build_map, load_backbone
 """
 
-from .backbone import Backbone, BackboneInfo, SemanticFrame, backbone_names, load_backbone
+from .backbones import Backbone, BackboneInfo, SemanticFrame, backbone_names, load_backbone
 from .build import BuildSummary, build_map
 from .config import Config, load_config
 from .describe import LostDescriber

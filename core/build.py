@@ -83,7 +83,7 @@ def build_map(
     """
     config = config or Config()
     if describer is None:
-        from .backbone import load_backbone
+        from .backbones import load_backbone
 
         describer = LostDescriber(load_backbone(config.backbone), config.lost)
     start = time.perf_counter()

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .backbone import Backbone, SemanticFrame
+from .backbones import Backbone, SemanticFrame
 from .classes import ClassGroups
 from .config import LostConfig
 from .errors import InputError

@@ -39,7 +39,7 @@ import time
 
 import numpy as np
 
-from .backbone import Backbone
+from .backbones import Backbone
 from .config import Config
 from .errors import InputError
 from .estimate import Candidate, Estimate, Evidence

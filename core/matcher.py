@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .backbone import Backbone, load_backbone
+from .backbones import Backbone, load_backbone
 from .config import BackboneConfig, Config, LostConfig
 from .describe import LostDescriber, TrailingMeans
 from .errors import MapError

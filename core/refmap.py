@@ -42,7 +42,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from .backbone import BackboneInfo, Quantisation
+from .backbones import BackboneInfo, Quantisation
 from .errors import MapError
 from .keypoints import KeypointEvidence
 from .lost import DescriptorStats, standardise

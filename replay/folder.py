@@ -38,7 +38,7 @@ class Traverse:
     """Reads one file as RGB uint8 (e.g. demosaicing raw Bayer); ``read_image`` when None."""
     geo: np.ndarray | None = None
     """(N, 2) latitude, longitude in degrees when the positions came from them. Two traverses'
-    local metres are only comparable after projecting both about one origin (``replay.dataset``)."""
+    local metres are only comparable after projecting both about one origin (``lostx.evaluation.datasets``)."""
     notes: list[str] = field(default_factory=list)
     """What the reader did that a user should know (frames skipped, fallbacks taken)."""
     source_indices: np.ndarray | None = None

@@ -32,7 +32,7 @@ def nordland() -> Path:
 @pytest.fixture(scope="session")
 def mosaic():
     """The default backbone, loaded once per test session."""
-    from lostx.core.backbone import load_backbone
+    from lostx.core.backbones import load_backbone
 
     _require(models_dir())
     return load_backbone()

@@ -10,10 +10,11 @@ import numpy as np
 import pytest
 
 from lostx.core.errors import InputError
-from lostx.core.metrics import evaluate
+from lostx.evaluation.metrics import evaluate
 from lostx.core.search import sad_distances, top_k
 from lostx.core.thumbnail import ThumbnailDescriber
-from lostx.replay.dataset import detect_format, open_pair, open_traverse, shared_positions
+from lostx.evaluation.datasets import open_pair, shared_positions
+from lostx.replay.dataset import detect_format, open_traverse
 from lostx.replay.folder import Traverse
 from lostx.replay.subsample import distance_subsample_indices, subsample_by_distance
 

@@ -13,10 +13,10 @@ import numpy as np
 import pytest
 import torch
 
-from lostx.core.backbone import load_backbone
+from lostx.core.backbones import load_backbone
 from lostx.core.config import BackboneConfig
 from lostx.core.errors import InputError, ModelError
-from lostx.core.espnet import CITYSCAPES_CLASSES, ESPNetv2Backbone, ESPNetv2Segmentation, load_network
+from lostx.core.backbones.espnet import CITYSCAPES_CLASSES, ESPNetv2Backbone, ESPNetv2Segmentation, load_network
 from lostx.core.images import read_image
 from lostx.core.paths import models_dir
 

@@ -7,7 +7,7 @@ import shutil
 
 import pytest
 
-from lostx.report import REQUIRED_KEYS
+from lostx.evaluation.report import REQUIRED_KEYS
 
 from test_cli import assert_one_line_error, lostx
 

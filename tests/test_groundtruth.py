@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from lostx.core.errors import InputError
-from lostx.core.groundtruth import from_indices, from_lists, from_positions, index_aligned, load_vprbench
+from lostx.evaluation.groundtruth import from_indices, from_lists, from_positions, index_aligned, load_vprbench
 
 
 def sets(gt):

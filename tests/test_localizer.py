@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from lostx.core import Config, Frame, Localizer
-from lostx.core.backbone import SemanticFrame
+from lostx.core.backbones import SemanticFrame
 from lostx.core.config import SequenceConfig, TrackerConfig
 from lostx.core.errors import ImageError, InputError
 from lostx.replay.folder import folder_traverse

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from lostx.core.errors import InputError
-from lostx.core.groundtruth import from_lists, index_aligned
-from lostx.core.metrics import evaluate, evaluate_tolerances, max_f1_by_tolerance, pr_curve, recall_at_n
+from lostx.evaluation.groundtruth import from_lists, index_aligned
+from lostx.evaluation.metrics import evaluate, evaluate_tolerances, max_f1_by_tolerance, pr_curve, recall_at_n
 
 
 def five_queries():

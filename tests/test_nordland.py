@@ -15,8 +15,8 @@ import pytest
 
 from lostx.core import Config, Localizer, ReferenceMap, build_map
 from lostx.core.config import SequenceConfig, TrackerConfig
-from lostx.core.groundtruth import index_aligned
-from lostx.core.metrics import evaluate
+from lostx.evaluation.groundtruth import index_aligned
+from lostx.evaluation.metrics import evaluate
 from lostx.core.thumbnail import ThumbnailDescriber
 from lostx.replay.folder import folder_traverse
 

@@ -8,7 +8,7 @@ import os
 import numpy as np
 import pytest
 
-from lostx.core.backbone import BackboneInfo, Quantisation
+from lostx.core.backbones import BackboneInfo, Quantisation
 from lostx.core.errors import MapError
 from lostx.core.keypoints import frame_evidence
 from lostx.core.refmap import MapFrame, MapWriter, ReferenceMap

@@ -9,10 +9,10 @@ import cv2
 import numpy as np
 import pytest
 
-from lostx import report
+from lostx.evaluation import report
 from lostx.core.errors import InputError
-from lostx.core.groundtruth import from_lists, index_aligned
-from lostx.core.metrics import evaluate, evaluate_tolerances
+from lostx.evaluation.groundtruth import from_lists, index_aligned
+from lostx.evaluation.metrics import evaluate, evaluate_tolerances
 from lostx.replay.matches import read_matches_csv
 
 

@@ -15,7 +15,8 @@ import numpy as np
 import pytest
 
 from lostx.core.errors import InputError
-from lostx.replay.dataset import detect_format, open_pair
+from lostx.evaluation.datasets import open_pair
+from lostx.replay.dataset import detect_format
 from lostx.replay.robotcar import demosaic, robotcar_traverse
 
 CHANNEL = {"R": 0, "G": 1, "B": 2}

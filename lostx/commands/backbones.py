@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from lostx.core.backbone import default_model_paths
+from lostx.core.backbones import default_model_paths
 
 
 def register(sub: argparse._SubParsersAction) -> None:

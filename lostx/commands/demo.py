@@ -19,7 +19,7 @@ import numpy as np
 
 from lostx.core.config import Config
 from lostx.core.errors import InputError, MapError
-from lostx.core.backbone import load_backbone
+from lostx.core.backbones import load_backbone
 from lostx.core.build import build_map
 from lostx.core.describe import LostDescriber
 from lostx.core.paths import cache_dir, data_dir

@@ -5,10 +5,10 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from lostx.evaluation import METHODS, MODES, evaluate_pair
+from lostx.evaluation.methods import METHODS, MODES, evaluate_pair
 from lostx.options import add_config_options, config_from_args
-from lostx.replay.dataset import FORMATS, open_pair
-from lostx.report import (
+from lostx.evaluation.datasets import FORMATS, open_pair
+from lostx.evaluation.report import (
     markdown_table,
     plot_max_f1_vs_tolerance,
     plot_pr_curves,

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from lostx.core.backbone import load_backbone
+from lostx.core.backbones import load_backbone
 from lostx.core.build import build_map
 from lostx.core.describe import LostDescriber
 from lostx.core.refmap import ReferenceMap

@@ -33,7 +33,7 @@ from typing import Literal, Sequence
 
 import numpy as np
 
-from .errors import InputError
+from lostx.core.errors import InputError
 from .groundtruth import GroundTruth
 
 RecallOver = Literal["matchable", "all"]

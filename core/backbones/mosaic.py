@@ -14,10 +14,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .backbone import BackboneInfo, Quantisation, SemanticFrame, file_md5, quiet_stderr, softmax
-from .config import BackboneConfig
-from .errors import ModelError
-from .images import check_frame
+from .base import BackboneInfo, Quantisation, SemanticFrame, file_md5, quiet_stderr, softmax
+from ..config import BackboneConfig
+from ..errors import ModelError
+from ..images import check_frame
 
 ADE20K_CLASSES = (
     "other", "wall", "building", "sky", "floor", "tree", "ceiling", "road", "bed", "windowpane",

@@ -28,7 +28,7 @@ from typing import Iterable, Literal, Sequence
 
 import numpy as np
 
-from .errors import InputError
+from lostx.core.errors import InputError
 
 Unit = Literal["frames", "m"]
 

@@ -31,22 +31,23 @@ from typing import Callable, Sequence
 import numpy as np
 from tqdm import tqdm
 
-from lostx.core.backbone import Backbone, load_backbone
+from lostx.core.backbones import Backbone, load_backbone
 from lostx.core.build import build_map
 from lostx.core.config import Config
 from lostx.core.describe import LostDescriber
 from lostx.core.errors import InputError, MapError
 from lostx.core.frame import Frame
-from lostx.core.groundtruth import GroundTruth
 from lostx.core.keypoints import KeypointEvidence
 from lostx.core.localizer import Localizer
 from lostx.core.matcher import MatchResult, PlaceMatcher, QueryDescription, uniqueness
-from lostx.core.metrics import Evaluation, evaluate_tolerances
 from lostx.core.refmap import ReferenceMap
 from lostx.core.search import cosine_distances, top_k
 from lostx.core.thumbnail import ThumbnailDescriber
-from lostx.replay.dataset import DatasetPair
 from lostx.replay.folder import Traverse
+
+from .datasets import DatasetPair
+from .groundtruth import GroundTruth
+from .metrics import Evaluation, evaluate_tolerances
 
 METHODS: dict[str, str] = {
     "lostx": "LoST-X",

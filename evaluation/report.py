@@ -18,7 +18,7 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
 from lostx.core.errors import InputError
-from lostx.core.metrics import Evaluation, PRCurve, max_f1_by_tolerance
+from .metrics import Evaluation, PRCurve, max_f1_by_tolerance
 
 Mode = Literal["single", "sequence"]
 MODES = ("single", "sequence")
