@@ -13,6 +13,7 @@ from typing import Any, Literal
 
 import numpy as np
 
+from .frame import Heading
 from .verify import Correspondences
 
 State = Literal["localized", "not_localized"]
@@ -82,13 +83,21 @@ class Estimate:
     window: int = 0
     """Frames in the sequence window; below the configured length while warming up."""
     warming_up: bool = False
-    opposite: bool = False
-    """The query camera faced opposite to the map's."""
+    heading: Heading = "same"
+    """The query views the route the same way as the map, or the opposite way (its x mirrored in
+    verification, its route index running against the map's when it drives the other way)."""
+    heading_confidence: float = 1.0
+    """Probability, in [0.5, 1], that ``heading`` is right."""
     latency_ms: dict[str, float] = field(default_factory=dict)
     """Milliseconds per stage: network, descriptor, search, verify; with the sequence filter also
     costs (the frame's normalised cost for every reference: O(map size), like the search),
     sequence (the trajectory update: independent of the map size) and tracker; and total."""
     evidence: Evidence | None = None
+
+    @property
+    def opposite(self) -> bool:
+        """The query views the route the opposite way to the map."""
+        return self.heading == "opposite"
 
     def summary(self) -> dict[str, Any]:
         """Every field except the evidence, as plain Python types (JSON- and msgpack-ready)."""
@@ -111,7 +120,8 @@ class Estimate:
             "speed": None if self.speed is None else float(self.speed),
             "window": int(self.window),
             "warming_up": bool(self.warming_up),
-            "opposite": bool(self.opposite),
+            "heading": self.heading,
+            "heading_confidence": float(self.heading_confidence),
             "latency_ms": {k: float(v) for k, v in self.latency_ms.items()},
         }
 

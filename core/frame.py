@@ -9,6 +9,10 @@ import numpy as np
 
 Camera = Literal["front", "rear"]
 CAMERAS: tuple[str, ...] = ("front", "rear")
+Heading = Literal["same", "opposite"]
+"""How a query camera views the route relative to the map's camera: the same way, or the opposite way
+(a rear camera against a front-camera map, or the route driven in the other direction)."""
+HEADINGS: tuple[str, ...] = ("same", "opposite")
 
 
 @dataclass
@@ -21,8 +25,9 @@ class Frame:
     """RGB uint8, H x W x 3."""
     timestamp: float | None = None
     """Seconds; ``None`` where the source has no clock."""
-    camera: Camera = "front"
-    """Which way the camera faces along the direction of travel."""
+    camera: Camera | None = None
+    """Which way the camera faces along the direction of travel, where the source declares it
+    (a prior on the heading relative to the map); ``None``: not declared."""
     position: tuple[float, float] | None = None
     """Ground-truth position, for evaluation only: the localizer never reads it."""
     name: str = ""

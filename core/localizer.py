@@ -87,7 +87,7 @@ class Localizer:
                     f"frame {frame.id}: timestamp {frame.timestamp} is earlier than the previous frame's "
                     f"{self._last_timestamp}; frames must arrive in time order (reset the localizer for a new traverse)"
                 )
-        opposite = frame.camera != self.map.camera
+        opposite = self._declared_opposite(frame)
         result = self.matcher.match(frame.image, opposite=opposite)
         if frame.timestamp is not None:
             self._last_timestamp = frame.timestamp
@@ -101,7 +101,7 @@ class Localizer:
         :meth:`step` computes the result with its own matcher; evaluation feeds results of
         other single-frame methods (or cached ones) through the same sequence stages here.
         """
-        opposite = frame.camera != self.map.camera
+        opposite = self._declared_opposite(frame)
         latency = {k: 1e3 * v for k, v in result.timings.items()}
         if self.config.sequence.enabled:
             estimate = self._sequence_estimate(frame, result, opposite, latency)
@@ -109,6 +109,9 @@ class Localizer:
             estimate = self._single_estimate(frame, result, opposite)
         estimate.latency_ms = latency
         return estimate
+
+    def _declared_opposite(self, frame: Frame) -> bool:
+        return frame.camera is not None and frame.camera != self.map.camera
 
     def _single_estimate(self, frame: Frame, result: MatchResult, opposite: bool) -> Estimate:
         index = result.best
@@ -175,7 +178,7 @@ class Localizer:
             score=float(score),
             single_match_index=result.best,
             candidates=_candidates(result),
-            opposite=opposite,
+            heading="opposite" if opposite else "same",
             evidence=self._evidence(result, index, opposite),
         )
 

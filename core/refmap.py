@@ -299,7 +299,8 @@ class ReferenceMap:
 
     @property
     def camera(self) -> str:
-        return str(self.manifest.get("camera", "front"))
+        """The map's camera direction: a declared query camera is read against it (front where unknown)."""
+        return str(self.manifest.get("camera") or "front")
 
     @property
     def image_root(self) -> Path | None:

@@ -105,8 +105,8 @@ def open_pair(
     query: str | Path | None = None,
     format: str | None = None,
     *,
-    reference_camera: Camera = "front",
-    query_camera: Camera = "front",
+    reference_camera: Camera | None = "front",
+    query_camera: Camera | None = None,
     reference_positions: str | Path | None = None,
     query_positions: str | Path | None = None,
     mirror_query: bool = False,
@@ -211,7 +211,8 @@ def _whole_frames(tolerance: float) -> int:
 
 
 def vprbench_pair(
-    root: str | Path, query_camera: Camera = "front", reference_camera: Camera = "front", mirror_query: bool = False
+    root: str | Path, query_camera: Camera | None = None, reference_camera: Camera | None = "front",
+    mirror_query: bool = False
 ) -> tuple[Traverse, Traverse, GroundTruth]:
     """(reference, query, ground truth) of a VPR-Bench dataset folder."""
     root = Path(root)

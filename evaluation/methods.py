@@ -182,7 +182,7 @@ def appearance_result(query: np.ndarray, refs: np.ndarray, config: Config) -> Ma
 def single_results(method: str, pair: DatasetPair, maps: dict[str, ReferenceMap], config: Config,
                    descriptions: list[QueryDescription] | None, backbone: Backbone | None,
                    progress: bool) -> list[MatchResult]:
-    opposite = pair.query.camera != pair.reference.camera
+    opposite = pair.query.camera is not None and pair.query.camera != (pair.reference.camera or "front")
     if method == "thumbnail":
         matcher = PlaceMatcher(maps["thumbnail"], config)
         frames = tqdm(pair.query, total=len(pair.query), desc="thumbnails", unit="frame", disable=not progress,

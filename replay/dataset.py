@@ -49,7 +49,7 @@ def detect_format(folder: str | Path) -> Format:
 def open_traverse(
     path: str | Path,
     format: str | None = None,
-    camera: Camera = "front",
+    camera: Camera | None = None,
     positions: str | Path | None = None,
     mirror: bool = False,
 ) -> Traverse:
@@ -61,7 +61,7 @@ def open_traverse(
     path = Path(path)
     kind = format or detect_format(path)
     if kind == "robotcar":
-        return robotcar_traverse(path, camera, ins=positions, mirror=mirror)
+        return robotcar_traverse(path, camera or "front", ins=positions, mirror=mirror)
     if kind in ("folder", "pairs"):
         if positions is None and (path / POSITIONS_FILE).is_file():
             positions = path / POSITIONS_FILE

@@ -31,7 +31,8 @@ class Traverse:
     """(N, 2) metres (x east, y north) or None. Derived from ``geo`` when that is set."""
     timestamps: np.ndarray | None = None
     """(N,) seconds, or None."""
-    camera: Camera = "front"
+    camera: Camera | None = None
+    """The camera's direction where the source declares it (``None``: not declared)."""
     mirror: bool = False
     """Flip every image left-right (a test of the flip handling, not an opposite view)."""
     loader: ImageLoader | None = None
@@ -97,8 +98,22 @@ class Traverse:
         )
 
 
+    def reversed(self) -> "Traverse":
+        """The frames in reverse order, as a vehicle driving the route the other way would meet them.
+
+        Timestamps are reflected (t' = t_first + t_last - t) so that they still increase and
+        keep their spacing; positions travel with their frames.
+        """
+        order = np.arange(len(self) - 1, -1, -1)
+        out = self.subset(order, note=f"{self.name}: frames in reverse order")
+        if self.timestamps is not None:
+            out.timestamps = self.timestamps[0] + self.timestamps[-1] - self.timestamps[order]
+        out.name = f"{self.name} (reversed)"
+        return out
+
+
 def folder_traverse(
-    images: str | Path, positions: str | Path | None = None, camera: Camera = "front", mirror: bool = False
+    images: str | Path, positions: str | Path | None = None, camera: Camera | None = None, mirror: bool = False
 ) -> Traverse:
     """A folder of images in name order, with an optional positions CSV (see ``replay.positions``)."""
     files = list_images(images)

@@ -25,7 +25,7 @@ def is_vprbench(folder: str | Path) -> bool:
     return (folder / "ref").is_dir() and (folder / "query").is_dir()
 
 
-def vprbench_traverse(folder: Path, camera: Camera = "front", mirror: bool = False) -> Traverse:
+def vprbench_traverse(folder: Path, camera: Camera | None = None, mirror: bool = False) -> Traverse:
     files = list_images(folder)
     notes = []
     if all(f.stem.isdigit() for f in files):

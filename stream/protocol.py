@@ -25,12 +25,12 @@ import msgpack
 import numpy as np
 
 from lostx.core.config import StreamConfig
-from lostx.core.frame import CAMERAS, Frame
+from lostx.core.frame import CAMERAS, HEADINGS, Frame
 
 from .errors import ProtocolError
 from .images import ENCODINGS, check_pixels, decode_image, encode_image, header_size
 
-VERSION = 1
+VERSION = 2
 """Schema version carried in every message's ``v``; a receiver refuses any other."""
 
 TOPICS: tuple[bytes, ...] = (b"result", b"error", b"stats")
@@ -90,7 +90,7 @@ class FrameMessage:
     """Producer -> service: one camera frame, image still encoded."""
 
     id: int
-    camera: str
+    camera: str | None
     encoding: str
     image: bytes
     shape: tuple[int, ...] | None = None
@@ -169,7 +169,8 @@ class Result:
     speed: float | None
     window: int
     warming_up: bool
-    opposite: bool
+    heading: str
+    heading_confidence: float
     latency_ms: dict[str, float]
     session: str = ""
 
@@ -244,13 +245,14 @@ def encode_frame(frame: Frame, encoding: str = "raw", quality: int = 90, stream:
     message: dict[str, Any] = {
         "type": "frame",
         "id": int(frame.id),
-        "camera": frame.camera,
         "encoding": encoding,
         "image": encode_image(image, encoding, quality),
         "shape": [int(s) for s in image.shape],
     }
     if encoding == "raw":
         message["dtype"] = "uint8"
+    if frame.camera is not None:
+        message["camera"] = frame.camera
     if frame.timestamp is not None:
         message["timestamp"] = float(frame.timestamp)
     if frame.position is not None:
@@ -430,7 +432,7 @@ Schema = dict[str, tuple[_Kind, bool]]
 _HELLO: Schema = {"v": (_INT, True), "type": (_STR, True), "stream": (_STR, False), "name": (_STR, False)}
 _FRAME: Schema = {
     "v": (_INT, True), "type": (_STR, True),
-    "id": (_UINT, True), "camera": (_STR, True), "encoding": (_STR, True), "image": (_BIN, True),
+    "id": (_UINT, True), "camera": (_STR.or_nil(), False), "encoding": (_STR, True), "image": (_BIN, True),
     "shape": (_ARRAY, False), "dtype": (_STR, False), "timestamp": (_NUMBER.or_nil(), False),
     "position": (_ARRAY.or_nil(), False), "name": (_STR, False), "stream": (_STR, False),
     "metadata": (_MAP, False),
@@ -451,7 +453,8 @@ _RESULT: Schema = {
     "confidence": (_NUMBER, True), "score": (_NUMBER.or_nil(), True),
     "single_match_index": (_UINT, True), "candidates": (_ARRAY, True),
     "sequence_score": (_NUMBER.or_nil(), True), "speed": (_NUMBER.or_nil(), True),
-    "window": (_UINT, True), "warming_up": (_BOOL, True), "opposite": (_BOOL, True),
+    "window": (_UINT, True), "warming_up": (_BOOL, True),
+    "heading": (_STR, True), "heading_confidence": (_NUMBER, True),
     "latency_ms": (_MAP, True),
 }
 _CANDIDATE: Schema = {
@@ -509,7 +512,7 @@ def _decode_hello(message: Mapping[str, Any]) -> Hello:
 def _decode_frame(message: Mapping[str, Any], limits: Limits) -> FrameMessage:
     f = _Fields(message, _FRAME)
     camera = _short_str(f, "camera")
-    if camera not in CAMERAS:
+    if camera is not None and camera not in CAMERAS:
         raise ProtocolError("bad_value", f"camera {camera!r} is not one of {', '.join(CAMERAS)}")
     encoding = _short_str(f, "encoding")
     if encoding not in ENCODINGS:
@@ -592,6 +595,8 @@ def _decode_result(message: Mapping[str, Any]) -> Result:
     f = _Fields(message, _RESULT, strict=False)
     if f.value("state") not in ("localized", "not_localized"):
         raise ProtocolError("bad_value", f"state {f.value('state')!r} is not localized or not_localized")
+    if f.value("heading") not in HEADINGS:
+        raise ProtocolError("bad_value", f"heading {f.value('heading')!r} is not one of {', '.join(HEADINGS)}")
     candidates = []
     for i, item in enumerate(f.value("candidates")):
         if not isinstance(item, dict):
@@ -613,7 +618,8 @@ def _decode_result(message: Mapping[str, Any]) -> Result:
         confidence=float(f.value("confidence")), score=_opt_float(f.value("score")),
         single_match_index=f.value("single_match_index"), candidates=tuple(candidates),
         sequence_score=_opt_float(f.value("sequence_score")), speed=_opt_float(f.value("speed")),
-        window=f.value("window"), warming_up=f.value("warming_up"), opposite=f.value("opposite"),
+        window=f.value("window"), warming_up=f.value("warming_up"),
+        heading=f.value("heading"), heading_confidence=float(f.value("heading_confidence")),
         latency_ms={k: float(v) for k, v in latency.items()}, session=f.value("session", ""),
     )
 

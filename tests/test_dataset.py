@@ -209,3 +209,20 @@ def test_subsampling_needs_positions(robotcar):
         subsample_by_distance(traverse, 2.0)
     with pytest.raises(InputError, match="positive number of metres"):
         distance_subsample_indices(np.zeros((3, 2)), 0.0)
+
+
+def test_a_reversed_traverse_runs_backwards_with_increasing_time(tmp_path):
+    import cv2
+
+    names = [f"{i:03d}.png" for i in range(4)]
+    for name in names:
+        cv2.imwrite(str(tmp_path / name), np.zeros((8, 8, 3), np.uint8))
+    (tmp_path / "positions.csv").write_text(
+        "file,x,y,timestamp\n" + "".join(f"{n},{i},0,{10 + 2 * i ** 2}\n" for i, n in enumerate(names)))
+    forward = open_traverse(tmp_path)
+    backward = forward.reversed()
+    assert [f.name for f in backward.files] == names[::-1]
+    assert backward.positions[:, 0].tolist() == [3, 2, 1, 0]
+    assert backward.source_indices.tolist() == [3, 2, 1, 0]
+    # Reflected clock: starts where the forward run started, keeps each gap, runs forward.
+    assert backward.timestamps.tolist() == [10, 20, 26, 28]

@@ -26,7 +26,7 @@ LIMITS = Limits()
 
 @pytest.fixture(scope="module")
 def night_frame(robotcar) -> Frame:
-    return folder_traverse(robotcar / "night").frame(3)
+    return dataclasses.replace(folder_traverse(robotcar / "night").frame(3), camera="front")
 
 
 def valid_fields(frame: Frame) -> dict:
@@ -67,7 +67,7 @@ def test_jpeg_is_close_and_much_smaller(night_frame):
 
 def test_grey_raw_images_become_three_channels():
     grey = (np.arange(32 * 48) % 251).astype(np.uint8).reshape(32, 48)
-    data = msgpack.packb({"v": 1, "type": "frame", "id": 1, "camera": "rear", "encoding": "raw",
+    data = msgpack.packb({"v": wire.VERSION, "type": "frame", "id": 1, "camera": "rear", "encoding": "raw",
                           "image": grey.tobytes(), "shape": [32, 48], "dtype": "uint8"})
     frame = wire.decode_request(data, LIMITS).to_frame()
     assert frame.image.shape == (32, 48, 3) and frame.camera == "rear"
@@ -88,7 +88,8 @@ def test_result_carries_every_summary_field():
         frame_id=7, timestamp=None, state="not_localized", match_index=12, match_name="x.png", position=(3.0, 4.0),
         confidence=0.25, score=float("inf"), single_match_index=11,
         candidates=[Candidate(12, 0.5, float("inf"), 0), Candidate(11, 0.6, 0.7, 9)],
-        sequence_score=1.5, speed=0.9, window=5, warming_up=True, opposite=True, latency_ms={"total": 12.0},
+        sequence_score=1.5, speed=0.9, window=5, warming_up=True, heading="opposite", heading_confidence=0.75,
+        latency_ms={"total": 12.0},
     )
     summary = estimate.summary()
     topic, payload = b"result", wire.encode_result(summary, "s1")
@@ -109,9 +110,9 @@ def test_stats_round_trip():
 
 def test_listener_side_tolerates_new_fields_but_checks_known_ones():
     summary = Estimate(1, 0.0, "localized", 2, "a", None, 0.5, 0.1, 2, []).summary()
-    data = msgpack.packb({"v": 1, "type": "result", **summary, "added_later": [1, 2]})
+    data = msgpack.packb({"v": wire.VERSION, "type": "result", **summary, "added_later": [1, 2]})
     assert wire.decode_published(b"result", data, LIMITS).match_index == 2
-    data = msgpack.packb({"v": 1, "type": "result", **summary, "confidence": "high"})
+    data = msgpack.packb({"v": wire.VERSION, "type": "result", **summary, "confidence": "high"})
     with pytest.raises(ProtocolError) as info:
         wire.decode_published(b"result", data, LIMITS)
     assert info.value.code == "bad_type"
@@ -123,8 +124,9 @@ def test_listener_side_tolerates_new_fields_but_checks_known_ones():
 @pytest.mark.parametrize(
     "change, code",
     [
-        ({"v": 2}, "bad_version"),
-        ({"v": "1"}, "bad_version"),
+        ({"v": 1}, "bad_version"),  # the previous version is refused, not misread
+        ({"v": 3}, "bad_version"),
+        ({"v": "2"}, "bad_version"),
         ({"v": None}, "bad_version"),
         ({"type": "frames"}, "unknown_type"),
         ({"type": 3}, "bad_type"),
@@ -159,7 +161,7 @@ def test_each_bad_field_is_refused_with_its_code_and_the_frame_id(night_frame, c
     assert error.frame_id == 3
 
 
-@pytest.mark.parametrize("field", ["v", "type", "id", "camera", "encoding", "image", "shape", "dtype"])
+@pytest.mark.parametrize("field", ["v", "type", "id", "encoding", "image", "shape", "dtype"])
 def test_missing_required_fields(night_frame, field):
     fields = valid_fields(night_frame)
     del fields[field]

@@ -45,7 +45,7 @@ def run(args: argparse.Namespace) -> int:
     config = config_from_args(args)
     pair = open_pair(
         args.reference, args.query, args.format,
-        query_camera="rear" if args.opposite else "front",
+        query_camera="rear" if args.opposite else None,
         reference_positions=args.reference_positions, query_positions=args.query_positions,
         mirror_query=args.mirror_query, spacing=args.spacing,
     )

@@ -21,6 +21,7 @@ from lostx.replay.folder import folder_traverse
 COLUMNS = ["query_index", "query_file", "match_index", "match_file", "score", "confidence", "candidates",
            "distance", "correspondences"]
 SEQUENCE_COLUMNS = ["single_match_index", "state", "speed"]
+HEADING_COLUMNS = ["heading", "heading_confidence"]
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -52,7 +53,7 @@ def run(args: argparse.Namespace) -> int:
         # Without --backbone the matcher takes the map's own; a different one named explicitly is a mistake.
         raise MapError(f"{args.map} was built with backbone {built_with}, but --backbone asks for {args.backbone}; "
                        f"use --backbone {built_with} (or leave it out) or rebuild the map")
-    camera = {"front": "rear", "rear": "front"}[refmap.camera] if args.opposite else refmap.camera
+    camera = {"front": "rear", "rear": "front"}[refmap.camera] if args.opposite else None
     queries = folder_traverse(args.queries, camera=camera, mirror=args.mirror)  # type: ignore[arg-type]
     localizer = Localizer(refmap, config)
     sink = viewer_sink_from_args(args, refmap)
@@ -68,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
     finally:
         close_viewer(sink)
     elapsed = time.perf_counter() - start
-    write_csv(args.out, COLUMNS + (SEQUENCE_COLUMNS if args.sequence else []), rows)
+    write_csv(args.out, COLUMNS + (SEQUENCE_COLUMNS if args.sequence else []) + HEADING_COLUMNS, rows)
     print(summary_line(estimates, elapsed, args.out))
     return 0
 
@@ -86,6 +87,8 @@ def csv_row(name: str, estimate: Estimate, refmap: ReferenceMap, sequence: bool)
         "distance": f"{single.distance:.6g}",
         "correspondences": single.correspondences if refmap.kind == "lost" else "",
     }
+    row["heading"] = estimate.heading
+    row["heading_confidence"] = f"{estimate.heading_confidence:.4f}"
     if sequence:
         row["single_match_index"] = estimate.single_match_index
         row["state"] = estimate.state

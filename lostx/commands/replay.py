@@ -29,7 +29,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                       "hold the replay back)")
     parser.add_argument("--loop", action="store_true", help="start over after the last frame, until Ctrl-C")
     camera = parser.add_mutually_exclusive_group()
-    camera.add_argument("--camera", choices=["front", "rear"], help="direction the camera faced (default front)")
+    camera.add_argument("--camera", choices=["front", "rear"], help="declare the direction the camera faced (default: not declared)")
     camera.add_argument("--opposite", action="store_true", help="the frames come from a rear camera "
                         "(the opposite of a front-camera map); same as --camera rear")
     parser.add_argument("--mirror", action="store_true",
@@ -60,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
     if args.jpeg_quality is not None and args.encoding not in (None, "jpeg"):
         raise InputError("--jpeg-quality goes with --encoding jpeg")
     encoding = args.encoding or ("jpeg" if args.jpeg_quality is not None else "raw")
-    camera = "rear" if args.opposite else (args.camera or "front")
+    camera = "rear" if args.opposite else args.camera
     frames = open_source(args.source, args.format, args.positions, camera, args.mirror)
     if args.as_fast_as_possible:
         pace = Pace("unlimited")
