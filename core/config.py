@@ -87,12 +87,13 @@ class SequenceConfig:
     """Answer with the sequence filter (``False``: single-frame answers)."""
     length: int = 20
     """L: frames in the rolling window."""
-    speeds: tuple[float, ...] = (0.0, 0.25, 0.5, 0.75, 0.8, 0.9, 1.0, 1.1, 1.2, 1.25, 1.5, 1.75, 2.0)
-    """Every trajectory slope the search may use, in reference frames per query frame (0 = stopped).
-    With a track, the tracker picks those within its plausible band."""
+    speeds: tuple[float, ...] = (0.25, 0.5, 0.75, 0.8, 0.9, 1.0, 1.1, 1.2, 1.25, 1.5, 1.75, 2.0)
+    """Trajectory slopes the search may use, in reference frames per query frame, each with both signs
+    (a falling reference index: the mapped route driven the other way), and 0 (stopped). With a
+    track, the tracker picks those within its plausible band."""
     acquire_speeds: tuple[float, ...] = (0.8, 0.9, 1.0, 1.1, 1.2)
-    """Slopes searched without a track (OpenSeqSLAM's range): a stopped or slow vehicle is only
-    plausible once the tracker has seen it slow down."""
+    """Slopes searched without a track (OpenSeqSLAM's range), each with both signs: a stopped or slow
+    vehicle is only plausible once the tracker has seen it slow down."""
     anchors: int = 20
     """Trajectories are anchored at each frame's verified candidates and its this many lowest-cost references."""
     radius: int = 0
@@ -109,6 +110,23 @@ class SequenceConfig:
     min_confidence: float = 0.5
     """An answer this confident or more is ``localized`` (0.5: the best trajectory beats every
     trajectory elsewhere by ln 2 = 0.69 standard deviations of the frame costs)."""
+
+
+@dataclass(frozen=True)
+class HeadingConfig:
+    """Which way the queries view the route relative to the map: found from the evidence, a declared
+    camera direction being a prior (see lostx.core.heading)."""
+
+    declared_prior: float = 0.9
+    """Probability given to a declared camera direction (a frame's ``camera``, ``--opposite``) before any
+    evidence. 0.5 ignores declarations; 1.0 trusts them and never weighs the evidence."""
+    vote_reliability: float = 0.6
+    """How often one frame's vote (its candidates scored with the query's x mirrored against not) points
+    the right way; each vote multiplies the odds by reliability / (1 - reliability)."""
+    switch: float = 0.001
+    """Probability per frame that the heading changes (the vehicle turned round, another camera)."""
+    min_confidence: float = 0.9
+    """A sequence answer is ``localized`` only when its heading is at least this probable."""
 
 
 @dataclass(frozen=True)
@@ -177,6 +195,7 @@ class Config:
     verify: VerifyConfig = field(default_factory=VerifyConfig)
     sequence: SequenceConfig = field(default_factory=SequenceConfig)
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
+    heading: HeadingConfig = field(default_factory=HeadingConfig)
     stream: StreamConfig = field(default_factory=StreamConfig)
 
     def to_dict(self) -> dict[str, Any]:

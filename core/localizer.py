@@ -43,12 +43,13 @@ from .backbones import Backbone
 from .config import Config
 from .errors import InputError
 from .estimate import Candidate, Estimate, Evidence
-from .frame import Frame
+from .frame import Frame, Heading
+from .heading import HeadingFilter
 from .images import check_frame
-from .matcher import MatchResult, PlaceMatcher
+from .matcher import FrameMatch, MatchResult, PlaceMatcher
 from .refmap import ReferenceMap
 from .search import top_k
-from .sequence import ReferenceNormaliser, SequenceFilter, contrast_normalise
+from .sequence import ReferenceNormaliser, SequenceFilter, contrast_normalise, signed
 from .tracker import RouteTracker
 from .verify import verify
 
@@ -63,9 +64,10 @@ class Localizer:
         self.config = config or Config()
         self.matcher = PlaceMatcher(refmap, self.config, backbone)
         seq = self.config.sequence
-        self.sequence = SequenceFilter(seq.length, seq.speeds, seq.radius, seq.penalty)
+        self.sequence = SequenceFilter(seq.length, tuple(signed(seq.speeds, stopped=True)), seq.radius, seq.penalty)
         self.hubs = ReferenceNormaliser(seq.reference_prior)
         self.tracker = RouteTracker(self.config.tracker)
+        self.heading = HeadingFilter(self.config.heading)
         self._last_timestamp: float | None = None
 
     def reset(self) -> None:
@@ -74,6 +76,7 @@ class Localizer:
         self.sequence.reset()
         self.hubs.reset()
         self.tracker.reset()
+        self.heading.reset()
         self._last_timestamp = None
 
     def step(self, frame: Frame) -> Estimate:
@@ -87,50 +90,54 @@ class Localizer:
                     f"frame {frame.id}: timestamp {frame.timestamp} is earlier than the previous frame's "
                     f"{self._last_timestamp}; frames must arrive in time order (reset the localizer for a new traverse)"
                 )
-        opposite = self._declared_opposite(frame)
-        result = self.matcher.match(frame.image, opposite=opposite)
+        matches = self.matcher.match(frame.image)
         if frame.timestamp is not None:
             self._last_timestamp = frame.timestamp
-        estimate = self.update(frame, result)
+        estimate = self.update(frame, matches)
         estimate.latency_ms["total"] = 1e3 * (time.perf_counter() - start)
         return estimate
 
-    def update(self, frame: Frame, result: MatchResult) -> Estimate:
-        """Advance the sequence filter and tracker with a single-frame result for ``frame``.
+    def update(self, frame: Frame, matches: FrameMatch) -> Estimate:
+        """Advance the heading, sequence filter and tracker with the single-frame matches of ``frame``.
 
-        :meth:`step` computes the result with its own matcher; evaluation feeds results of
-        other single-frame methods (or cached ones) through the same sequence stages here.
+        :meth:`step` computes the matches with its own matcher; evaluation feeds matches of
+        other single-frame methods (or cached ones) through the same stages here.
         """
-        opposite = self._declared_opposite(frame)
+        heading, sure = self.heading.update(matches.heading_evidence, self._declared_heading(frame))
+        result = matches[heading]
         latency = {k: 1e3 * v for k, v in result.timings.items()}
         if self.config.sequence.enabled:
-            estimate = self._sequence_estimate(frame, result, opposite, latency)
+            estimate = self._sequence_estimate(frame, result, sure, latency, self._travel_direction(frame, heading, sure))
         else:
-            estimate = self._single_estimate(frame, result, opposite)
+            estimate = self._single_estimate(frame, result)
+        estimate.heading_confidence = sure
         estimate.latency_ms = latency
         return estimate
 
-    def _declared_opposite(self, frame: Frame) -> bool:
-        return frame.camera is not None and frame.camera != self.map.camera
+    def _declared_heading(self, frame: Frame) -> Heading | None:
+        if frame.camera is None:
+            return None
+        return "opposite" if frame.camera != self.map.camera else "same"
 
-    def _single_estimate(self, frame: Frame, result: MatchResult, opposite: bool) -> Estimate:
+    def _single_estimate(self, frame: Frame, result: MatchResult) -> Estimate:
         index = result.best
-        return self._estimate(frame, result, opposite, index, "localized", result.confidence, result.score)
+        return self._estimate(frame, result, index, "localized", result.confidence, result.score)
 
-    def _sequence_estimate(self, frame: Frame, result: MatchResult, opposite: bool, latency: dict) -> Estimate:
+    def _sequence_estimate(self, frame: Frame, result: MatchResult, heading_sure: float, latency: dict,
+                           direction: int) -> Estimate:
         cfg = self.config.sequence
         t0 = time.perf_counter()
         costs = self.hubs(contrast_normalise(result.map_scores, cfg.contrast_window))
         anchors = np.union1d(result.candidates, top_k(costs, cfg.anchors))
         t_costs = time.perf_counter()
-        speeds = self._plausible_speeds()
+        speeds = self._plausible_speeds(direction)
         seq = self.sequence.update(anchors, costs, speeds)
         runner_up = self.sequence.runner_up(seq.position, cfg.exclusion)
         margin = max(0.0, runner_up - seq.score) if np.isfinite(runner_up) else np.inf
         confidence = float(1.0 - np.exp(-margin))
         t1 = time.perf_counter()
         warming = seq.frames < cfg.length
-        confident = confidence >= cfg.min_confidence
+        confident = confidence >= cfg.min_confidence and heading_sure >= self.config.heading.min_confidence
         position, speed, trusted = seq.position, seq.speed, confident
         if not warming and self.config.tracker.enabled:
             track = self.tracker.step(seq.position, seq.speed, confident)
@@ -143,8 +150,7 @@ class Localizer:
         latency["sequence"] = 1e3 * (t1 - t_costs)
         latency["tracker"] = 1e3 * (t2 - t1)
         index = int(np.clip(np.rint(position), 0, self.map.n_frames - 1))
-        estimate = self._estimate(frame, result, opposite, index, state,
-                                  confidence if state == "localized" else 0.0, seq.score)
+        estimate = self._estimate(frame, result, index, state, confidence if state == "localized" else 0.0, seq.score)
         estimate.sequence_score = seq.score
         estimate.speed = float(speed)
         estimate.window = seq.frames
@@ -155,18 +161,35 @@ class Localizer:
             estimate.evidence.sequence_candidates = refs
         return estimate
 
-    def _plausible_speeds(self) -> np.ndarray:
-        """Speeds of the trajectories the new frame spawns: the tracker's band, or the acquisition range."""
+    def _travel_direction(self, frame: Frame, heading: Heading, sure: float) -> int:
+        """+1 (reference index rising), -1 (falling), or 0 (unknown: search both).
+
+        A declared camera ties the heading to the direction of travel: a front camera that views the
+        route the same way as a front-camera map drives it the same way; viewing it the opposite way,
+        it drives it the other way (and a rear camera the reverse). Undeclared, they are independent.
+        """
+        if frame.camera is None or sure < self.config.heading.min_confidence:
+            return 0
+        return 1 if (heading == "same") == (frame.camera == self.map.camera) else -1
+
+    def _plausible_speeds(self, direction: int) -> np.ndarray:
+        """Speeds of the trajectories the new frame spawns: the tracker's band, or the acquisition range;
+        of one sign when the direction of travel is known."""
         cfg = self.config.sequence
         band = self.tracker.speed_range() if self.config.tracker.enabled else None
         if band is None:
-            return np.asarray(cfg.acquire_speeds, dtype=np.float64)
-        speeds = np.asarray(cfg.speeds, dtype=np.float64)
-        inside = speeds[(speeds >= band[0]) & (speeds <= band[1])]
-        return inside if len(inside) else speeds[[int(np.argmin(np.abs(speeds - sum(band) / 2)))]]
+            speeds = signed(cfg.acquire_speeds, stopped=False)
+        else:
+            speeds = signed(cfg.speeds, stopped=True)
+            inside = speeds[(speeds >= band[0]) & (speeds <= band[1])]
+            speeds = inside if len(inside) else speeds[[int(np.argmin(np.abs(speeds - sum(band) / 2)))]]
+        if direction:
+            along = speeds[speeds * direction >= 0]
+            speeds = along if len(along) else speeds
+        return speeds
 
-    def _estimate(self, frame: Frame, result: MatchResult, opposite: bool, index: int, state: str,
-                  confidence: float, score: float) -> Estimate:
+    def _estimate(self, frame: Frame, result: MatchResult, index: int, state: str, confidence: float,
+                  score: float) -> Estimate:
         return Estimate(
             frame_id=frame.id,
             timestamp=frame.timestamp,
@@ -178,11 +201,11 @@ class Localizer:
             score=float(score),
             single_match_index=result.best,
             candidates=_candidates(result),
-            heading="opposite" if opposite else "same",
-            evidence=self._evidence(result, index, opposite),
+            heading=result.heading,
+            evidence=self._evidence(result, index),
         )
 
-    def _evidence(self, result: MatchResult, index: int, opposite: bool) -> Evidence:
+    def _evidence(self, result: MatchResult, index: int) -> Evidence:
         """What it takes to draw the answer (and the single-frame best): their correspondences."""
         correspondences = {}
         if result.verification is not None:
@@ -192,7 +215,7 @@ class Localizer:
                     # The sequence answer was not among the verified candidates: verify it too, to draw it.
                     distance = float(result.distances[0]) if len(result.distances) else 1.0
                     extra = verify(self.matcher.last_evidence, self.map.evidence([reference]), np.array([distance]),
-                                   opposite=opposite, scoring=self.config.verify.scoring,
+                                   opposite=result.heading == "opposite", scoring=self.config.verify.scoring,
                                    density=self.config.verify.density_filter)
                     corr = extra.correspondences(0)
                 correspondences[reference] = corr

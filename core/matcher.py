@@ -12,6 +12,7 @@ from .backbones import Backbone, load_backbone
 from .config import BackboneConfig, Config, LostConfig
 from .describe import LostDescriber, TrailingMeans
 from .errors import MapError
+from .frame import Heading
 from .images import check_frame
 from .keypoints import KeypointEvidence
 from .lost import RunningStandardiser
@@ -68,6 +69,8 @@ class MatchResult:
     """(N,) the single-frame score of every reference frame, for the sequence filter: the descriptor
     distance for thumbnails; for LoST-X the verification score of the verified candidates and, elsewhere,
     the descriptor distance times the candidates' median ratio of score to distance."""
+    heading: Heading = "same"
+    """The heading hypothesis these scores were computed under (the query's x mirrored for ``opposite``)."""
 
     @property
     def best(self) -> int:
@@ -83,6 +86,37 @@ class MatchResult:
     @property
     def score(self) -> float:
         return float(self.scores[0])
+
+
+@dataclass
+class FrameMatch:
+    """One query frame matched under both heading hypotheses: the query views the route the same way
+    as the map, or the opposite way (its x mirrored in verification, its thumbnail flipped)."""
+
+    same: MatchResult
+    opposite: MatchResult
+    heading_evidence: float = 0.0
+    """This frame's vote on the heading, in [-1, 1]: the mean over the candidates scored under both
+    hypotheses of sign(score same - score opposite). Positive favours ``opposite``; 0 is no evidence
+    (nothing verified, or a method that cannot tell)."""
+
+    def __getitem__(self, heading: Heading) -> MatchResult:
+        return self.opposite if heading == "opposite" else self.same
+
+    @classmethod
+    def either(cls, result: MatchResult) -> "FrameMatch":
+        """A method that cannot tell the headings apart (a pooled descriptor): one answer for both."""
+        return cls(same=result, opposite=dataclasses.replace(result, heading="opposite"))
+
+
+def heading_vote(same: np.ndarray, opposite: np.ndarray) -> float:
+    """Mean of sign(same - opposite) over the candidates scored (finitely) under both hypotheses.
+
+    A sign per candidate, not a ratio: the vote does not depend on the scale of the scores, which
+    differs between scorings and data sets.
+    """
+    both = np.isfinite(same) & np.isfinite(opposite)
+    return float(np.mean(np.sign(same[both] - opposite[both]))) if both.any() else 0.0
 
 
 def uniqueness(candidates: np.ndarray, scores: np.ndarray, exclusion: int) -> float:
@@ -141,11 +175,12 @@ class PlaceMatcher:
             self.normaliser.reset()
             self.means.reset()
 
-    def match(self, image: np.ndarray, opposite: bool = False) -> MatchResult:
+    def match(self, image: np.ndarray) -> FrameMatch:
+        """Match one frame under both heading hypotheses."""
         image = check_frame(image)
         if isinstance(self.describer, ThumbnailDescriber):
-            return self._match_thumbnail(image, opposite)
-        return self.match_description(self.describe(image), opposite)
+            return self._match_thumbnail(image)
+        return self.match_description(self.describe(image))
 
     def describe(self, image: np.ndarray, appearance: bool = False) -> QueryDescription:
         """Run the network on a LoST query frame (the expensive, cacheable half of :meth:`match`);
@@ -161,25 +196,34 @@ class PlaceMatcher:
         return QueryDescription(raw, frame.appearance() if appearance else None, frame.evidence, frame.labels,
                                 {"network": t1 - t0, "descriptor": t2 - t1})
 
-    def _match_thumbnail(self, image: np.ndarray, opposite: bool) -> MatchResult:
+    def _match_thumbnail(self, image: np.ndarray) -> FrameMatch:
         t0 = time.perf_counter()
-        query = self.describer(image[:, ::-1] if opposite else image)
+        # The opposite hypothesis compares the flipped thumbnail: left and right swap between the views.
+        queries = {"same": self.describer(image), "opposite": self.describer(image[:, ::-1])}
         t1 = time.perf_counter()
-        distances = sad_distances(query, self.map.descriptors)
-        order = top_k(distances, self.config.verify.top_k)
-        t2 = time.perf_counter()
-        ranked = distances[order]
-        return MatchResult(
-            candidates=order,
-            distances=ranked,
-            scores=ranked,
-            confidence=uniqueness(order, ranked, self.config.verify.uniqueness_exclusion),
-            timings={"network": 0.0, "descriptor": t1 - t0, "search": t2 - t1, "verify": 0.0},
-            map_scores=distances,
-        )
+        results = {}
+        for heading, query in queries.items():
+            distances = sad_distances(query, self.map.descriptors)
+            order = top_k(distances, self.config.verify.top_k)
+            ranked = distances[order]
+            results[heading] = MatchResult(
+                candidates=order,
+                distances=ranked,
+                scores=ranked,
+                confidence=uniqueness(order, ranked, self.config.verify.uniqueness_exclusion),
+                map_scores=distances,
+                heading=heading,  # type: ignore[arg-type]
+            )
+        timings = {"network": 0.0, "descriptor": t1 - t0, "search": time.perf_counter() - t1, "verify": 0.0}
+        for result in results.values():
+            result.timings = timings
+        # Paired over the candidates of both searches: every one of them scored both ways.
+        shortlist = np.union1d(results["same"].candidates, results["opposite"].candidates)
+        vote = heading_vote(results["same"].map_scores[shortlist], results["opposite"].map_scores[shortlist])
+        return FrameMatch(results["same"], results["opposite"], vote)
 
-    def match_description(self, query: QueryDescription, opposite: bool = False) -> MatchResult:
-        """Normalise (causally), search and verify a described LoST query frame."""
+    def match_description(self, query: QueryDescription) -> FrameMatch:
+        """Normalise (causally), search and verify a described LoST query frame under both headings."""
         cfg = self.config.verify
         self.last_evidence = query.evidence
         t0 = time.perf_counter()
@@ -190,31 +234,36 @@ class PlaceMatcher:
         timings = {**query.timings, "search": t1 - t0, "verify": 0.0}
         if not cfg.enabled:
             ranked = distances[shortlist]
-            return MatchResult(shortlist, ranked, ranked, uniqueness(shortlist, ranked, cfg.uniqueness_exclusion),
-                               query_labels=query.labels, timings=timings, map_scores=distances)
+            return FrameMatch.either(MatchResult(
+                shortlist, ranked, ranked, uniqueness(shortlist, ranked, cfg.uniqueness_exclusion),
+                query_labels=query.labels, timings=timings, map_scores=distances))
         result = verify(
             query.evidence,
             self.map.evidence(shortlist),
             distances[shortlist],
-            opposite=opposite,
             scoring=cfg.scoring,
             density=cfg.density_filter,
         )
-        rank = np.lexsort((np.arange(len(shortlist)), result.scores))
         timings["verify"] = time.perf_counter() - t1
-        candidates, scores = shortlist[rank], result.scores[rank]
-        return MatchResult(
-            candidates=candidates,
-            distances=distances[candidates],
-            scores=scores,
-            confidence=uniqueness(candidates, scores, cfg.uniqueness_exclusion),
-            n_matches=result.n_matches[rank],
-            verification=result,
-            shortlist=shortlist,
-            query_labels=query.labels,
-            timings=timings,
-            map_scores=map_scores(distances, shortlist, result.scores, cfg.scoring),
-        )
+        by_heading = {"same": result.scores, "opposite": result.mirror_scores}
+        answers = {}
+        for heading, scores in by_heading.items():
+            rank = np.lexsort((np.arange(len(shortlist)), scores))
+            candidates, ranked = shortlist[rank], scores[rank]
+            answers[heading] = MatchResult(
+                candidates=candidates,
+                distances=distances[candidates],
+                scores=ranked,
+                confidence=uniqueness(candidates, ranked, cfg.uniqueness_exclusion),
+                n_matches=result.n_matches[rank],
+                verification=result,
+                shortlist=shortlist,
+                query_labels=query.labels,
+                timings=timings,
+                map_scores=map_scores(distances, shortlist, scores, cfg.scoring),
+                heading=heading,  # type: ignore[arg-type]
+            )
+        return FrameMatch(answers["same"], answers["opposite"], heading_vote(result.scores, result.mirror_scores))
 
 
 def map_scores(distances: np.ndarray, shortlist: np.ndarray, verified: np.ndarray, scoring: str) -> np.ndarray:

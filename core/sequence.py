@@ -56,6 +56,15 @@ def contrast_normalise(scores: np.ndarray, window: int) -> np.ndarray:
     return out.astype(np.float32)
 
 
+def signed(magnitudes: tuple[float, ...], stopped: bool) -> np.ndarray:
+    """Speeds of both signs for the given magnitudes (a reference index rising or falling), plus 0
+    (standing still) when ``stopped``; sorted."""
+    values = {float(m) for m in magnitudes if m > 0} | {-float(m) for m in magnitudes if m > 0}
+    if stopped:
+        values.add(0.0)
+    return np.asarray(sorted(values), dtype=np.float64)
+
+
 class ReferenceNormaliser:
     """Standardises each reference's cost against its own history over the queries seen so far.
 
@@ -202,9 +211,11 @@ class SequenceFilter:
         if len(scores) == 0:
             return SequenceResult(np.nan, np.nan, np.inf, len(self._times), np.full(len(self._times), np.nan))
         ends = self.positions()
-        # Lowest score; ties go to the slower trajectory, then the lower position, then the newer anchor.
+        # Lowest score; ties go to the slower trajectory, then the lower position, then the newer anchor,
+        # then a rising reference index.
         tied = np.flatnonzero(scores == scores.min())
-        best = tied[np.lexsort((-self._anchor_t[tied], ends[tied], self._speed[tied]))[0]]
+        speed = self._speed[tied]
+        best = tied[np.lexsort((-speed, -self._anchor_t[tied], ends[tied], np.abs(speed)))[0]]
         times = np.asarray(self._times)
         return SequenceResult(
             position=float(ends[best]),

@@ -15,8 +15,10 @@ The M survivors are scored by weighted keypoint matching, Eq. 4:
 
 with w_kk' the cosine similarity of the D-dim descriptors x_k, x_k',
 normalised over the M pairs, and p the x coordinates as a fraction of the
-image width, the query's mirrored (p -> 1 - p) when its camera faces opposite
-to the reference's. Lower is better.
+image width, the query's mirrored (p -> 1 - p) when it views the route the
+opposite way to the reference. Lower is better. Both heading hypotheses are
+scored at once (they share every correspondence): the localizer finds the
+heading by comparing them.
 """
 
 from __future__ import annotations
@@ -46,6 +48,7 @@ class Verification:
     """Scores of C candidates, and the correspondences behind them."""
 
     scores: np.ndarray  # (C,) lower is better; inf where no usable correspondence survives
+    mirror_scores: np.ndarray  # (C,) the same correspondences scored with the query's x mirrored the other way
     n_consistent: np.ndarray  # (C,) correspondences after the label consistency test
     n_matches: np.ndarray  # (C,) M: after the density test
     grid: tuple[int, int]
@@ -199,18 +202,13 @@ def verify(
     cand, chan, q_loc, r_loc, similarity = cand[keep], chan[keep], q_loc[keep], r_loc[keep], similarity[keep]
 
     p_query = (q_loc % w) / max(w - 1, 1)
-    if opposite:
-        p_query = 1.0 - p_query
     p_ref = (r_loc % w) / max(w - 1, 1)
     lost_distance = np.asarray(lost_distance, dtype=np.float64)
-    if scoring == "released":
-        scores = released_score(cand, similarity, p_query, p_ref, lost_distance)
-    else:
-        scores = eq4_score(cand, similarity, p_query, p_ref, n_cand)
-        if scoring == "eq4-lost":
-            scores = np.where(np.isfinite(scores), scores * np.maximum(lost_distance, 0.0), np.inf)
+    # Both heading hypotheses share the correspondences; only the query's x differs (p -> 1 - p).
+    asked, other = (1.0 - p_query, p_query) if opposite else (p_query, 1.0 - p_query)
     return Verification(
-        scores=scores,
+        scores=_score(scoring, cand, similarity, asked, p_ref, lost_distance),
+        mirror_scores=_score(scoring, cand, similarity, other, p_ref, lost_distance),
         n_consistent=n_consistent,
         n_matches=np.bincount(cand, minlength=n_cand),
         grid=(h, w),
@@ -221,3 +219,13 @@ def verify(
         _label=label_q[chan],
         _similarity=similarity,
     )
+
+
+def _score(scoring: Scoring, group: np.ndarray, similarity: np.ndarray, p_query: np.ndarray, p_ref: np.ndarray,
+           lost_distance: np.ndarray) -> np.ndarray:
+    if scoring == "released":
+        return released_score(group, similarity, p_query, p_ref, lost_distance)
+    scores = eq4_score(group, similarity, p_query, p_ref, len(lost_distance))
+    if scoring == "eq4-lost":
+        scores = np.where(np.isfinite(scores), scores * np.maximum(lost_distance, 0.0), np.inf)
+    return scores

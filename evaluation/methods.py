@@ -39,7 +39,7 @@ from lostx.core.errors import InputError, MapError
 from lostx.core.frame import Frame
 from lostx.core.keypoints import KeypointEvidence
 from lostx.core.localizer import Localizer
-from lostx.core.matcher import MatchResult, PlaceMatcher, QueryDescription, uniqueness
+from lostx.core.matcher import FrameMatch, MatchResult, PlaceMatcher, QueryDescription, uniqueness
 from lostx.core.refmap import ReferenceMap
 from lostx.core.search import cosine_distances, top_k
 from lostx.core.thumbnail import ThumbnailDescriber
@@ -69,6 +69,10 @@ class Run:
     predictions: np.ndarray
     confidences: np.ndarray
     candidates: np.ndarray
+    headings: np.ndarray | None = None
+    """Per query, the heading the localizer reported ('same' / 'opposite')."""
+    localized: np.ndarray | None = None
+    """Per query, whether the answer was ``localized``."""
     evaluations: list[Evaluation] = field(default_factory=list)
 
     @property
@@ -170,24 +174,25 @@ def _load_descriptions(path: Path) -> list[QueryDescription]:
     return out
 
 
-def appearance_result(query: np.ndarray, refs: np.ndarray, config: Config) -> MatchResult:
-    """Single-frame answer of the appearance baseline: cosine distance of GeM descriptors."""
+def appearance_result(query: np.ndarray, refs: np.ndarray, config: Config) -> FrameMatch:
+    """Single-frame answer of the appearance baseline: cosine distance of GeM descriptors (pooled, so
+    it cannot tell the headings apart)."""
     distances = cosine_distances(query, refs)
     order = top_k(distances, config.verify.top_k)
     ranked = distances[order]
-    return MatchResult(order, ranked, ranked, uniqueness(order, ranked, config.verify.uniqueness_exclusion),
-                       map_scores=distances, timings={})
+    return FrameMatch.either(MatchResult(order, ranked, ranked,
+                                         uniqueness(order, ranked, config.verify.uniqueness_exclusion),
+                                         map_scores=distances, timings={}))
 
 
 def single_results(method: str, pair: DatasetPair, maps: dict[str, ReferenceMap], config: Config,
                    descriptions: list[QueryDescription] | None, backbone: Backbone | None,
-                   progress: bool) -> list[MatchResult]:
-    opposite = pair.query.camera is not None and pair.query.camera != (pair.reference.camera or "front")
+                   progress: bool) -> list[FrameMatch]:
     if method == "thumbnail":
         matcher = PlaceMatcher(maps["thumbnail"], config)
         frames = tqdm(pair.query, total=len(pair.query), desc="thumbnails", unit="frame", disable=not progress,
                       leave=False)
-        return [matcher.match(f.image, opposite=opposite) for f in frames]
+        return [matcher.match(f.image) for f in frames]
     assert descriptions is not None
     if method == "appearance":
         refs = maps["lost"].appearance
@@ -196,29 +201,27 @@ def single_results(method: str, pair: DatasetPair, maps: dict[str, ReferenceMap]
         return [appearance_result(d.appearance, refs, config) for d in descriptions]
     verify_cfg = dataclasses.replace(config.verify, enabled=method == "lostx")
     matcher = PlaceMatcher(maps["lost"], dataclasses.replace(config, verify=verify_cfg), backbone)
-    return [matcher.match_description(d, opposite=opposite) for d in descriptions]
+    return [matcher.match_description(d) for d in descriptions]
 
 
-def runs_of(method: str, results: list[MatchResult], refmap: ReferenceMap, query: Traverse, config: Config,
+def runs_of(method: str, matches: list[FrameMatch], refmap: ReferenceMap, query: Traverse, config: Config,
             backbone: Backbone | None, modes: Sequence[str]) -> list[Run]:
+    """Each mode through the localizer's own stages (heading, and the sequence filter and tracker)."""
     out = []
-    if "single" in modes:
-        out.append(Run(method, "single", np.array([r.best for r in results]),
-                       np.array([r.confidence for r in results]), _candidate_lists([r.candidates for r in results])))
-    if "sequence" in modes:
-        localizer = Localizer(refmap, dataclasses.replace(config, sequence=dataclasses.replace(config.sequence,
-                                                                                                enabled=True)),
-                              backbone)
+    for mode in modes:
+        sequence = dataclasses.replace(config.sequence, enabled=mode == "sequence")
+        localizer = Localizer(refmap, dataclasses.replace(config, sequence=sequence), backbone)
         estimates = []
-        for i, result in enumerate(results):
-            # The sequence stages read the frame's id, clock and camera, never its pixels.
+        for i, frame_matches in enumerate(matches):
+            # These stages read the frame's id, clock and camera, never its pixels.
             stamp = float(query.timestamps[i]) if query.timestamps is not None else None
             frame = Frame(id=i, image=np.zeros((1, 1, 3), np.uint8), timestamp=stamp, camera=query.camera)
-            estimates.append(localizer.update(frame, result))
-        lists = [[e.match_index] + [int(c) for c in r.candidates if c != e.match_index]
-                 for e, r in zip(estimates, results)]
-        out.append(Run(method, "sequence", np.array([e.match_index for e in estimates]),
-                       np.array([e.confidence for e in estimates]), _candidate_lists(lists)))
+            estimates.append(localizer.update(frame, frame_matches))
+        lists = [[e.match_index] + [c.index for c in e.candidates if c.index != e.match_index] for e in estimates]
+        out.append(Run(method, mode, np.array([e.match_index for e in estimates]),
+                       np.array([e.confidence for e in estimates]), _candidate_lists(lists),
+                       headings=np.array([e.heading for e in estimates]),
+                       localized=np.array([e.state == "localized" for e in estimates])))
     return out
 
 

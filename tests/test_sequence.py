@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lostx.core.sequence import ReferenceNormaliser, SequenceFilter, contrast_normalise
+from lostx.core.sequence import ReferenceNormaliser, SequenceFilter, contrast_normalise, signed
 
-SPEEDS = (0.0, 0.5, 0.8, 1.0, 1.2, 2.0)
+SPEEDS = (-1.2, -0.8, 0.0, 0.5, 0.8, 1.0, 1.2, 2.0)
 
 
 def batch_answers(frames: list[tuple[np.ndarray, np.ndarray | None, np.ndarray]], length: int, radius: int,
@@ -32,11 +32,11 @@ def batch_answers(frames: list[tuple[np.ndarray, np.ndarray | None, np.ndarray]]
                             total += penalty
                             continue
                         near = [costs[c] for c in range(centre - radius, centre + radius + 1) if 0 <= c < len(costs)]
-                        total += min(near)
-                    key = (total / len(window), v, ra + v * (t - ta), -ta)
+                        total += float(min(near))
+                    key = (total / len(window), abs(v), ra + v * (t - ta), -ta, -v)
                     if best is None or key < best:
                         best = key
-        answers.append((np.nan, np.nan, np.inf) if best is None else (best[2], best[1], best[0]))
+        answers.append((np.nan, np.nan, np.inf) if best is None else (best[2], -best[4], best[0]))
     return answers
 
 
@@ -92,7 +92,7 @@ def test_online_equals_batch_on_real_nordland_candidates(nordland):
     want = batch_answers(fed, cfg.length, cfg.radius, cfg.penalty)
     tracked = [e for e in online if e.state == "localized"]
     assert len(tracked) > 100  # the scene is recognised: the comparison covers real, varied answers
-    fresh = SequenceFilter(cfg.length, cfg.speeds, cfg.radius, cfg.penalty)
+    fresh = SequenceFilter(cfg.length, tuple(signed(cfg.speeds, stopped=True)), cfg.radius, cfg.penalty)
     for (anchors, costs, speeds), (position, speed, score) in zip(fed, want):
         got = fresh.update(anchors, costs, speeds)
         assert (got.position, got.speed) == (position, speed)

@@ -24,7 +24,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("--query", type=Path, help="query traverse (not for a VPR-Bench folder)")
     parser.add_argument("--format", choices=FORMATS, help="dataset layout (default: recognised from the folders)")
     parser.add_argument("--out", type=Path, required=True, help="report folder to write")
-    parser.add_argument("--opposite", action="store_true", help="the query camera faces opposite to the reference's")
+    parser.add_argument("--opposite", action="store_true",
+                        help="the queries view the route the opposite way to the reference (scored as the true "
+                             "heading; the localizer is not told unless --declare)")
+    parser.add_argument("--declare", action="store_true",
+                        help="tell the localizer the query camera's direction (front, or rear with --opposite) "
+                             "as a prior on the heading")
     parser.add_argument("--mirror-query", action="store_true",
                         help="flip the query images left-right (a test of the flip handling, not an opposite view)")
     parser.add_argument("--reference-positions", type=Path, help="positions CSV of the reference images")
@@ -45,7 +50,7 @@ def run(args: argparse.Namespace) -> int:
     config = config_from_args(args)
     pair = open_pair(
         args.reference, args.query, args.format,
-        query_camera="rear" if args.opposite else None,
+        query_camera=("rear" if args.opposite else "front") if args.declare else None,
         reference_positions=args.reference_positions, query_positions=args.query_positions,
         mirror_query=args.mirror_query, spacing=args.spacing,
     )

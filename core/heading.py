@@ -1,0 +1,67 @@
+"""Which way the query views the route relative to the map, found from the evidence.
+
+Two hypotheses: ``same`` (the query camera looks along the route the way the
+map's camera did) and ``opposite`` (a rear camera against a front-camera map,
+or the mapped road driven the other way). Every frame is verified under both
+(the query's x mirrored or not, paper Sec. III-C); the mirroring that fits its
+candidates better casts the frame's vote (:func:`lostx.core.matcher.heading_vote`).
+
+A two-state discrete Bayes filter (filterpy) accumulates the votes:
+
+    predict:  P(h) <- (1 - s) P(h) + s P(other h)        s = ``switch``
+    update:   P(h) <- P(h) * (p if the vote says h else 1 - p), normalised
+              p = 1/2 + (``vote_reliability`` - 1/2) |vote|
+
+A declared camera direction only sets the prior: P(declared) =
+``declared_prior`` when the declaration first appears or changes. The
+answer is the more probable heading and its probability. The direction of
+travel along the map (reference index rising or falling) is a separate
+question, answered by the sign of the sequence filter's speed.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from filterpy.discrete_bayes import predict, update
+
+from .config import HeadingConfig
+from .frame import HEADINGS, Heading
+
+
+
+class HeadingFilter:
+    """P(same), P(opposite) over the frames of one traverse."""
+
+    def __init__(self, config: HeadingConfig | None = None) -> None:
+        self.config = config or HeadingConfig()
+        self.reset()
+
+    def reset(self) -> None:
+        self.belief = np.full(len(HEADINGS), 1.0 / len(HEADINGS))
+        self._declared: Heading | None = None
+
+    def update(self, vote: float, declared: Heading | None = None) -> tuple[Heading, float]:
+        """Add one frame: its vote (> 0 favours opposite, 0 none) and the heading its camera declares.
+        Returns the more probable heading and its probability."""
+        cfg = self.config
+        if declared is not None and declared != self._declared:
+            self._declared = declared
+            self.belief = _prior(declared, cfg.declared_prior)
+        trusted = declared is not None and cfg.declared_prior >= 1.0
+        if not trusted:
+            s = cfg.switch
+            self.belief = predict(self.belief, 0, [s / 2, 1.0 - s, s / 2])  # on two states: a swap with probability s
+            if vote != 0.0:
+                # A split vote (candidates disagreeing) counts for less: reliability shrinks towards 1/2.
+                p = 0.5 + (cfg.vote_reliability - 0.5) * min(abs(vote), 1.0)
+                says_opposite = vote > 0
+                likelihood = np.array([1.0 - p, p] if says_opposite else [p, 1.0 - p])
+                self.belief = update(likelihood, self.belief)
+        best = int(np.argmax(self.belief))
+        return HEADINGS[best], float(self.belief[best])  # type: ignore[return-value]
+
+
+def _prior(declared: Heading, strength: float) -> np.ndarray:
+    belief = np.full(len(HEADINGS), 1.0 - strength)
+    belief[HEADINGS.index(declared)] = strength
+    return belief / belief.sum()
