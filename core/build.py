@@ -16,7 +16,9 @@ from .describe import DescribedFrame, LostDescriber
 from .errors import MapError
 from .frame import Frame
 from .lost import centred_window, window_means
-from .refmap import MapFrame, MapWriter
+from .calibration import calibrate
+from .camera import Geometry
+from .refmap import MapFrame, MapWriter, ReferenceMap
 from .thumbnail import ThumbnailDescriber
 
 
@@ -94,13 +96,17 @@ def build_map(
     if isinstance(describer, LostDescriber):
         meta["classes"] = describer.groups.spec()
         meta["label_names"] = list(describer.groups.label_names)
+        geometry = Geometry.for_backbone(config.camera, config.camera.view_hfov_deg, config.backbone.fit,
+                                         describer.backbone.info)
+        meta["geometry"] = geometry.record()
     else:
         meta["thumbnail"] = describer.settings()
     bar = tqdm(total=total, desc=f"building {Path(out).name}", unit="frame", disable=not progress, leave=False)
     with MapWriter(out, kind, meta, backbone=info, overwrite=overwrite) as writer:
         try:
             if isinstance(describer, LostDescriber):
-                for frame, described, mu in _windowed(_ticking(frames, bar), describer, config.lost.reference_window):
+                describe = lambda image: describer(geometry.prepare(image))  # noqa: E731
+                for frame, described, mu in _windowed(_ticking(frames, bar), describe, config.lost.reference_window):
                     writer.add(
                         MapFrame(frame.name, describer.descriptor(described, mu), described.evidence,
                                  described.appearance(), frame.position, frame.timestamp)
@@ -114,6 +120,11 @@ def build_map(
         if not writer.frames:
             raise MapError("the traverse has no frames; nothing to build")
         path = writer.commit()
+    refmap = ReferenceMap.open(path)
+    backbone = describer.backbone if isinstance(describer, LostDescriber) else None
+    frames_measured = min(refmap.n_frames, config.decision.calibration_frames)
+    with tqdm(total=frames_measured, desc="calibrating", unit="frame", disable=not progress, leave=False) as bar:
+        refmap.store_calibration(calibrate(refmap, config, backbone, progress=bar.update))
     return BuildSummary(path=path, n_frames=len(writer.frames), seconds=time.perf_counter() - start, bytes=writer.nbytes)
 
 

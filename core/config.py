@@ -23,6 +23,7 @@ from typing import Any, Literal
 from .errors import InputError
 
 Scoring = Literal["eq4-lost", "eq4", "released"]
+Fit = Literal["squash", "crop", "pad"]
 DensityFilter = Literal["query", "both", "off"]
 Normalisation = Literal["running", "reference"]
 StreamMode = Literal["live", "lossless"]
@@ -40,6 +41,24 @@ class BackboneConfig:
     """``cpu``, ``cuda`` or ``cuda:N`` for PyTorch backbones; TFLite backbones run on the CPU."""
     threads: int = 2
     """CPU threads for inference."""
+    fit: Fit = "squash"
+    """How a frame is fitted to the network input's aspect ratio: resized as it is (``squash``), its
+    centre cut out (``crop``), or black borders added (``pad``). A map records it; queries follow the map."""
+
+
+@dataclass(frozen=True)
+class CameraConfig:
+    """The camera the frames come from, brought to a common geometry before the network (lostx.core.camera)."""
+
+    hfov_deg: float | None = None
+    """This camera's horizontal field of view in degrees (``None``: unknown; no field-of-view matching)."""
+    view_hfov_deg: float | None = None
+    """Building a map: narrow every frame to this common field of view (the map records it, and queries
+    from a wider camera are narrowed to it)."""
+    ignore_top: float = 0.0
+    """Fraction of the frame's height dropped at the top."""
+    ignore_bottom: float = 0.0
+    """Fraction of the frame's height dropped at the bottom (the vehicle's own bonnet or boot lid)."""
 
 
 @dataclass(frozen=True)
@@ -107,9 +126,18 @@ class SequenceConfig:
     exclusion: int = 5
     """Confidence compares the best trajectory with the best one ending more than this many
     reference frames away."""
-    min_confidence: float = 0.5
-    """An answer this confident or more is ``localized`` (0.5: the best trajectory beats every
-    trajectory elsewhere by ln 2 = 0.69 standard deviations of the frame costs)."""
+
+
+@dataclass(frozen=True)
+class DecisionConfig:
+    """When an answer is ``localized``: its confidence, calibrated on the map (see lostx.core.calibration)."""
+
+    min_confidence: float = 0.999
+    """An answer is ``localized`` when its confidence is at least this: when it looks surer than this
+    share of the wrong answers the map produces against itself (0.999: all but one in a thousand)."""
+    calibration_frames: int = 2000
+    """Map frames matched against the map (their neighbourhood excluded) to measure wrong answers;
+    longer maps are sampled in stretches spread over the route."""
 
 
 @dataclass(frozen=True)
@@ -120,10 +148,10 @@ class HeadingConfig:
     declared_prior: float = 0.9
     """Probability given to a declared camera direction (a frame's ``camera``, ``--opposite``) before any
     evidence. 0.5 ignores declarations; 1.0 trusts them and never weighs the evidence."""
-    vote_reliability: float = 0.6
+    vote_reliability: float = 0.65
     """How often one frame's vote (its candidates scored with the query's x mirrored against not) points
     the right way; each vote multiplies the odds by reliability / (1 - reliability)."""
-    switch: float = 0.001
+    switch: float = 0.0003
     """Probability per frame that the heading changes (the vehicle turned round, another camera)."""
     min_confidence: float = 0.9
     """A sequence answer is ``localized`` only when its heading is at least this probable."""
@@ -191,11 +219,13 @@ class Config:
     """Everything lostx can be tuned by."""
 
     backbone: BackboneConfig = field(default_factory=BackboneConfig)
+    camera: CameraConfig = field(default_factory=CameraConfig)
     lost: LostConfig = field(default_factory=LostConfig)
     verify: VerifyConfig = field(default_factory=VerifyConfig)
     sequence: SequenceConfig = field(default_factory=SequenceConfig)
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
     heading: HeadingConfig = field(default_factory=HeadingConfig)
+    decision: DecisionConfig = field(default_factory=DecisionConfig)
     stream: StreamConfig = field(default_factory=StreamConfig)
 
     def to_dict(self) -> dict[str, Any]:

@@ -67,8 +67,9 @@ class Estimate:
     position: tuple[float, float] | None
     """Map position of ``match_index`` where the map has positions."""
     confidence: float
-    """In [0, 1]; higher is surer. Thresholding it trades precision against recall:
-    see :mod:`lostx.core.localizer` for how it is computed in each mode."""
+    """In [0, 1]: the share of the wrong answers the map produces against itself that look less sure
+    than this one (an estimate of the probability that the answer is right). Thresholding it trades
+    precision against recall; see :mod:`lostx.core.calibration`."""
     score: float
     """The method's own score of the answer, lower is better (sequence cost, or the
     single-frame score without the sequence filter)."""
@@ -83,6 +84,10 @@ class Estimate:
     window: int = 0
     """Frames in the sequence window; below the configured length while warming up."""
     warming_up: bool = False
+    margin: float | None = None
+    """What the confidence is calibrated from: the sequence answer's lead over the best trajectory
+    elsewhere (standard deviations of the frame costs; inf with no rival), or the single-frame
+    uniqueness."""
     heading: Heading = "same"
     """The query views the route the same way as the map, or the opposite way (its x mirrored in
     verification, its route index running against the map's when it drives the other way)."""
@@ -120,6 +125,7 @@ class Estimate:
             "speed": None if self.speed is None else float(self.speed),
             "window": int(self.window),
             "warming_up": bool(self.warming_up),
+            "margin": None if self.margin is None else _num(self.margin),
             "heading": self.heading,
             "heading_confidence": float(self.heading_confidence),
             "latency_ms": {k: float(v) for k, v in self.latency_ms.items()},

@@ -10,22 +10,28 @@
    implausible jumps, narrows the speeds searched next, and restarts after a
    genuine jump.
 
-Confidence, in [0, 1], higher is surer:
+The heading (the query viewing the route the same way as the map or the
+opposite way) is found from the evidence by a :class:`HeadingFilter`; the
+frame's matches under that heading feed the later stages. A declared camera
+ties the direction of travel to the heading; undeclared, trajectories of both
+signs are searched.
 
-- with the sequence filter: 1 - exp(-m), where m is the margin of the best
-  trajectory's mean cost under the best trajectory ending more than
-  ``sequence.exclusion`` reference frames away, in units of the frames'
-  contrast-normalised costs (standard deviations); 0 when there is no margin;
-- single-frame (``sequence.enabled = False``): the verified uniqueness
-  1 - s_best / s_alt of :func:`lostx.core.matcher.uniqueness`;
-- always 0 when the state is ``not_localized``.
+The margin, what the confidence is calibrated from:
 
-State, with the sequence filter: ``localized`` when the window is full and the
-answer is confident (confidence >= ``sequence.min_confidence``) and, with the
-tracker, plausible (it agrees with the track's prediction); ``not_localized``
-while warming up (fewer than L frames seen), when the evidence is weak, and
-when the tracker finds the answer implausible (then the answer is the track's
-prediction).
+- with the sequence filter: the best trajectory's mean cost under that of the
+  best trajectory ending more than ``sequence.exclusion`` reference frames away,
+  in units of the frames' contrast-normalised costs (standard deviations);
+- single frame (``sequence.enabled = False``): the verified uniqueness
+  1 - s_best / s_alt of :func:`lostx.core.matcher.uniqueness`.
+
+Confidence, in [0, 1]: the margin's rank among the margins of wrong answers
+measured on the map itself (:mod:`lostx.core.calibration`); 0 while warming up
+and when the tracker replaces the answer by its prediction.
+
+State: ``localized`` when the confidence reaches ``decision.min_confidence``,
+the heading is at least ``heading.min_confidence`` probable and, with the
+sequence filter, the window is full and (with the tracker) the answer agrees
+with the track's prediction; ``not_localized`` otherwise.
 
 Bad input (a frame that is not an H x W x 3 uint8 image, non-finite network
 output, a timestamp earlier than the previous frame's) raises a
@@ -40,6 +46,7 @@ import time
 import numpy as np
 
 from .backbones import Backbone
+from .calibration import Calibration, calibrate
 from .config import Config
 from .errors import InputError
 from .estimate import Candidate, Estimate, Evidence
@@ -59,10 +66,19 @@ WINDOW_PICTURE_WIDTH = 15
 class Localizer:
     """Stateful place recognition over a stream of frames from one camera."""
 
-    def __init__(self, refmap: ReferenceMap, config: Config | None = None, backbone: Backbone | None = None) -> None:
+    def __init__(self, refmap: ReferenceMap, config: Config | None = None, backbone: Backbone | None = None,
+                 calibration: Calibration | None = None) -> None:
+        """``calibration``: the map's wrong-answer margins for these settings; by default the map's
+        stored one, or measured now (and stored beside the map) when it has none for them."""
         self.map = refmap
         self.config = config or Config()
         self.matcher = PlaceMatcher(refmap, self.config, backbone)
+        if calibration is None:
+            calibration = refmap.calibration(self.config)
+            if calibration is None:
+                calibration = calibrate(refmap, self.config, self.matcher.backbone)
+                refmap.store_calibration(calibration)
+        self.calibration = calibration
         seq = self.config.sequence
         self.sequence = SequenceFilter(seq.length, tuple(signed(seq.speeds, stopped=True)), seq.radius, seq.penalty)
         self.hubs = ReferenceNormaliser(seq.reference_prior)
@@ -109,7 +125,7 @@ class Localizer:
         if self.config.sequence.enabled:
             estimate = self._sequence_estimate(frame, result, sure, latency, self._travel_direction(frame, heading, sure))
         else:
-            estimate = self._single_estimate(frame, result)
+            estimate = self._single_estimate(frame, result, sure)
         estimate.heading_confidence = sure
         estimate.latency_ms = latency
         return estimate
@@ -119,9 +135,16 @@ class Localizer:
             return None
         return "opposite" if frame.camera != self.map.camera else "same"
 
-    def _single_estimate(self, frame: Frame, result: MatchResult) -> Estimate:
-        index = result.best
-        return self._estimate(frame, result, index, "localized", result.confidence, result.score)
+    def _single_estimate(self, frame: Frame, result: MatchResult, heading_sure: float) -> Estimate:
+        confidence = self.calibration.single_confidence(result.confidence)
+        localized = self._confident(confidence, heading_sure)
+        estimate = self._estimate(frame, result, result.best, "localized" if localized else "not_localized",
+                                  confidence, result.score)
+        estimate.margin = result.confidence
+        return estimate
+
+    def _confident(self, confidence: float, heading_sure: float) -> bool:
+        return confidence >= self.config.decision.min_confidence and heading_sure >= self.config.heading.min_confidence
 
     def _sequence_estimate(self, frame: Frame, result: MatchResult, heading_sure: float, latency: dict,
                            direction: int) -> Estimate:
@@ -134,23 +157,24 @@ class Localizer:
         seq = self.sequence.update(anchors, costs, speeds)
         runner_up = self.sequence.runner_up(seq.position, cfg.exclusion)
         margin = max(0.0, runner_up - seq.score) if np.isfinite(runner_up) else np.inf
-        confidence = float(1.0 - np.exp(-margin))
         t1 = time.perf_counter()
         warming = seq.frames < cfg.length
-        confident = confidence >= cfg.min_confidence and heading_sure >= self.config.heading.min_confidence
+        confidence = 0.0 if warming else self.calibration.sequence_confidence(margin)
+        confident = self._confident(confidence, heading_sure)
         position, speed, trusted = seq.position, seq.speed, confident
         if not warming and self.config.tracker.enabled:
             track = self.tracker.step(seq.position, seq.speed, confident)
             trusted = confident and track.accepted
-            if not track.accepted:
-                position, speed = track.position, track.speed
+            if not track.accepted and track.position != seq.position:
+                position, speed, confidence = track.position, track.speed, 0.0  # the track's prediction
         state = "localized" if trusted and not warming else "not_localized"
         t2 = time.perf_counter()
         latency["costs"] = 1e3 * (t_costs - t0)
         latency["sequence"] = 1e3 * (t1 - t_costs)
         latency["tracker"] = 1e3 * (t2 - t1)
         index = int(np.clip(np.rint(position), 0, self.map.n_frames - 1))
-        estimate = self._estimate(frame, result, index, state, confidence if state == "localized" else 0.0, seq.score)
+        estimate = self._estimate(frame, result, index, state, confidence, seq.score)
+        estimate.margin = float(margin)
         estimate.sequence_score = seq.score
         estimate.speed = float(speed)
         estimate.window = seq.frames

@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .backbones import Backbone, load_backbone
+from .camera import Geometry
 from .config import BackboneConfig, Config, LostConfig
 from .describe import LostDescriber, TrailingMeans
 from .errors import MapError
@@ -156,6 +157,9 @@ class PlaceMatcher:
             lost_cfg = self.config.lost
             classes = refmap.manifest.get("classes")
             self.describer = LostDescriber(backbone, lost_cfg if classes is None else _with_classes(lost_cfg, classes))
+            recorded = refmap.manifest.get("geometry") or {}
+            self.geometry = Geometry.for_backbone(self.config.camera, recorded.get("view_hfov_deg"),
+                                                  recorded.get("fit", "squash"), backbone.info)
             if list(self.describer.groups.label_names) != refmap.manifest.get("label_names"):
                 raise MapError(f"{refmap.path}: the map's semantic classes differ from the configured ones")
             self.normaliser = RunningStandardiser(
@@ -166,6 +170,7 @@ class PlaceMatcher:
             settings = refmap.manifest.get("thumbnail", {})
             self.describer = ThumbnailDescriber(tuple(settings.get("size", (64, 32))), settings.get("patch", 8))
 
+        self.backbone: Backbone | None = self.describer.backbone if isinstance(self.describer, LostDescriber) else None
         self.last_evidence: KeypointEvidence | None = None
         """The latest LoST query's keypoint evidence (to verify further candidates against)."""
 
@@ -188,7 +193,7 @@ class PlaceMatcher:
         describer = self.describer
         assert isinstance(describer, LostDescriber)
         t0 = time.perf_counter()
-        semantic = describer.backbone(check_frame(image))
+        semantic = describer.backbone(self.geometry.prepare(check_frame(image)))
         t1 = time.perf_counter()
         frame = describer.from_semantic(semantic)
         raw = describer.descriptor(frame, self.means(frame))
@@ -199,11 +204,16 @@ class PlaceMatcher:
     def _match_thumbnail(self, image: np.ndarray) -> FrameMatch:
         t0 = time.perf_counter()
         # The opposite hypothesis compares the flipped thumbnail: left and right swap between the views.
-        queries = {"same": self.describer(image), "opposite": self.describer(image[:, ::-1])}
+        return self._thumbnail_match({"same": self.describer(image), "opposite": self.describer(image[:, ::-1])}, t0)
+
+    def _thumbnail_match(self, queries: dict[str, np.ndarray], t0: float,
+                         exclude: tuple[int, int] | None = None) -> FrameMatch:
         t1 = time.perf_counter()
         results = {}
         for heading, query in queries.items():
             distances = sad_distances(query, self.map.descriptors)
+            if exclude is not None:
+                _worst(distances, _around(len(distances), *exclude))
             order = top_k(distances, self.config.verify.top_k)
             ranked = distances[order]
             results[heading] = MatchResult(
@@ -224,21 +234,44 @@ class PlaceMatcher:
 
     def match_description(self, query: QueryDescription) -> FrameMatch:
         """Normalise (causally), search and verify a described LoST query frame under both headings."""
-        cfg = self.config.verify
         self.last_evidence = query.evidence
         t0 = time.perf_counter()
-        descriptor = self.normaliser(query.descriptor)
-        distances = cosine_distances(descriptor, self.map.descriptors)
-        shortlist = top_k(distances, cfg.top_k)
+        distances = cosine_distances(self.normaliser(query.descriptor), self.map.descriptors)
+        return self._search_and_verify(distances, query.evidence, query.labels, {**query.timings}, t0)
+
+    def match_reference(self, index: int, exclude: int) -> FrameMatch | None:
+        """Map frame ``index`` as a query, with the reference frames within ``exclude`` of it removed:
+        its answer is necessarily wrong. What wrong answers look like, measured without any query
+        (see :mod:`lostx.core.calibration`). None when the exclusion leaves no reference frame."""
+        if self.map.n_frames <= _around(self.map.n_frames, index, exclude).stop - max(0, index - exclude):
+            return None
+        t0 = time.perf_counter()
+        if isinstance(self.describer, ThumbnailDescriber):
+            query = np.asarray(self.map.descriptors[index])
+            flipped = query.reshape(self.describer.size[1], -1)[:, ::-1].ravel()
+            return self._thumbnail_match({"same": query, "opposite": flipped}, t0, exclude=(index, exclude))
+        distances = cosine_distances(self.map.descriptors[index], self.map.descriptors)
+        return self._search_and_verify(distances, self.map.evidence([index]), self.map.labels(index), {}, t0,
+                                       excluded=_around(len(distances), index, exclude))
+
+    def _search_and_verify(self, distances: np.ndarray, evidence: KeypointEvidence, labels: np.ndarray,
+                           timings: dict[str, float], t0: float, excluded: slice | None = None) -> FrameMatch:
+        cfg = self.config.verify
+        if excluded is not None:
+            _worst(distances, excluded)
+            shortlist = top_k(np.delete(distances, excluded), cfg.top_k)
+            shortlist[shortlist >= excluded.start] += excluded.stop - excluded.start
+        else:
+            shortlist = top_k(distances, cfg.top_k)
         t1 = time.perf_counter()
-        timings = {**query.timings, "search": t1 - t0, "verify": 0.0}
+        timings.update({"search": t1 - t0, "verify": 0.0})
         if not cfg.enabled:
             ranked = distances[shortlist]
             return FrameMatch.either(MatchResult(
                 shortlist, ranked, ranked, uniqueness(shortlist, ranked, cfg.uniqueness_exclusion),
-                query_labels=query.labels, timings=timings, map_scores=distances))
+                query_labels=labels, timings=timings, map_scores=distances))
         result = verify(
-            query.evidence,
+            evidence,
             self.map.evidence(shortlist),
             distances[shortlist],
             scoring=cfg.scoring,
@@ -258,12 +291,25 @@ class PlaceMatcher:
                 n_matches=result.n_matches[rank],
                 verification=result,
                 shortlist=shortlist,
-                query_labels=query.labels,
+                query_labels=labels,
                 timings=timings,
                 map_scores=map_scores(distances, shortlist, scores, cfg.scoring),
                 heading=heading,  # type: ignore[arg-type]
             )
+            if excluded is not None:
+                _worst(answers[heading].map_scores, excluded)
         return FrameMatch(answers["same"], answers["opposite"], heading_vote(result.scores, result.mirror_scores))
+
+
+def _around(n: int, index: int, radius: int) -> slice:
+    return slice(max(0, index - radius), min(n, index + radius + 1))
+
+
+def _worst(scores: np.ndarray, excluded: slice) -> None:
+    """Give the excluded references the worst score of the others (finite, so that the sequence
+    filter's contrast normalisation stays defined): no answer can fall there."""
+    outside = np.delete(scores, excluded)
+    scores[excluded] = outside.max() if len(outside) else 0.0
 
 
 def map_scores(distances: np.ndarray, shortlist: np.ndarray, verified: np.ndarray, scoring: str) -> np.ndarray:

@@ -38,7 +38,7 @@ import shutil
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
@@ -46,6 +46,10 @@ from .backbones import BackboneInfo, Quantisation
 from .errors import MapError
 from .keypoints import KeypointEvidence
 from .lost import DescriptorStats, standardise
+
+if TYPE_CHECKING:
+    from .calibration import Calibration
+    from .config import Config
 
 MAP_FORMAT = "lostx-map"
 MAP_VERSION = 1
@@ -322,6 +326,22 @@ class ReferenceMap:
     @property
     def nbytes(self) -> int:
         return sum(int(e["bytes"]) for e in self.manifest["arrays"].values())
+
+    def calibration(self, config: "Config") -> "Calibration | None":
+        """The stored calibration measured with these settings, if any (see lostx.core.calibration)."""
+        from .calibration import load, settings_key
+
+        stored = load(self.path)
+        return stored if stored is not None and stored.settings == settings_key(config) else None
+
+    def store_calibration(self, calibration: "Calibration") -> None:
+        """Keep a calibration beside the map; a map on a read-only disk simply goes without."""
+        from .calibration import store
+
+        try:
+            store(self.path, calibration)
+        except OSError:
+            pass
 
     def check_backbone(self, info: BackboneInfo) -> None:
         """Refuse queries described by another backbone than the one that built the map."""

@@ -18,7 +18,7 @@ def _night_matches(day_map, robotcar, mosaic, scoring: str) -> np.ndarray:
     estimates = [localizer.step(frame) for frame in folder_traverse(robotcar / "night")]
     # One frame's vote can be wrong; the evidence settles the heading within two frames.
     assert [e.heading for e in estimates[2:]] == ["same"] * (len(estimates) - 2)
-    assert estimates[-1].heading_confidence > 0.95
+    assert estimates[-1].heading_confidence > 0.9
     return np.array([e.match_index for e in estimates])
 
 # Measured on these ten night frames against the ten day frames (single frame, no sequence filter).

@@ -43,6 +43,8 @@ class BackboneInfo:
     default_classes: dict[str, tuple[str, ...]]
     feature_quantisation: Quantisation | None = None
     """Set when the features are exactly representable as uint8 (a quantised model)."""
+    input_size: tuple[int, int] | None = None
+    """(width, height) the network takes frames at (None: any)."""
 
 
 @dataclass

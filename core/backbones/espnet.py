@@ -431,6 +431,7 @@ class ESPNetv2Backbone:
             grid=(height // 16, width // 16),
             class_names=CITYSCAPES_CLASSES,
             default_classes=DEFAULT_CLASSES,
+            input_size=INPUT_SIZE,
         )
 
     def _run(self, image: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:

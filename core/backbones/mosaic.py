@@ -83,6 +83,7 @@ class MosaicBackbone:
             class_names=ADE20K_CLASSES,
             default_classes=DEFAULT_CLASSES,
             feature_quantisation=self._feature_q,
+            input_size=self._input_size,
         )
 
     def __call__(self, image: np.ndarray) -> SemanticFrame:

@@ -1,0 +1,111 @@
+"""Bringing frames of different cameras to a common geometry before the network.
+
+Front and rear cameras rarely share a field of view (nuScenes: 65 against 90
+degrees), and a rear camera often sees the vehicle's own body along its bottom
+edge. Before the network, each frame is:
+
+1. cut: ``ignore_top`` / ``ignore_bottom`` (fractions of the height) dropped;
+2. narrowed to the common field of view ``view_hfov_deg`` when its own
+   ``hfov_deg`` is wider: a centred crop of width W tan(view/2) / tan(hfov/2)
+   (a pinhole camera; the height is cropped in proportion, so the scale of
+   the scene matches between the cameras);
+3. fitted to the network input's aspect ratio: ``squash`` (resize as is, the
+   whole frame seen), ``crop`` (the centre that has the input's aspect) or
+   ``pad`` (black borders).
+
+All three are no-ops with the default settings. A map records the settings its
+frames were prepared with; queries are prepared to its field of view.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from .config import CameraConfig, Fit
+from .errors import InputError
+
+if TYPE_CHECKING:
+    from .backbones import BackboneInfo
+
+
+@dataclass(frozen=True)
+class Geometry:
+    """How one camera's frames are prepared for one map."""
+
+    camera: CameraConfig
+    view_hfov_deg: float | None
+    """The map's common field of view (None: none)."""
+    fit: Fit
+    input_aspect: float | None
+    """Width / height of the network input (None: unknown, no fitting)."""
+
+    @classmethod
+    def for_backbone(cls, camera: CameraConfig, view_hfov_deg: float | None, fit: Fit,
+                     info: "BackboneInfo") -> "Geometry":
+        size = info.input_size
+        return cls(camera, view_hfov_deg, fit, None if size is None else size[0] / size[1])
+
+    def prepare(self, image: np.ndarray) -> np.ndarray:
+        """The frame as the network should see it (see the module docstring)."""
+        out = cut_rows(image, self.camera.ignore_top, self.camera.ignore_bottom)
+        if self.view_hfov_deg is not None and self.camera.hfov_deg is not None:
+            out = narrow_to_fov(out, self.camera.hfov_deg, self.view_hfov_deg)
+        if self.input_aspect is not None:
+            out = fit_aspect(out, self.input_aspect, self.fit)
+        return np.ascontiguousarray(out)
+
+    def record(self) -> dict[str, Any]:
+        """What a map keeps of how its frames were prepared."""
+        return {"view_hfov_deg": self.view_hfov_deg, "fit": self.fit, "hfov_deg": self.camera.hfov_deg,
+                "ignore_top": self.camera.ignore_top, "ignore_bottom": self.camera.ignore_bottom}
+
+
+def cut_rows(image: np.ndarray, top: float, bottom: float) -> np.ndarray:
+    if top == 0 and bottom == 0:
+        return image
+    h = image.shape[0]
+    y0, y1 = int(round(top * h)), h - int(round(bottom * h))
+    if y1 - y0 < 16:
+        raise InputError(f"ignoring {top:g} of the top and {bottom:g} of the bottom leaves {y1 - y0} rows of {h}")
+    return image[y0:y1]
+
+
+def narrow_to_fov(image: np.ndarray, hfov_deg: float, view_hfov_deg: float) -> np.ndarray:
+    """The centred part of a pinhole image with ``hfov_deg`` that a ``view_hfov_deg`` camera would see."""
+    if view_hfov_deg >= hfov_deg:
+        return image
+    scale = math.tan(math.radians(view_hfov_deg) / 2) / math.tan(math.radians(hfov_deg) / 2)
+    h, w = image.shape[:2]
+    cw, ch = max(1, int(round(w * scale))), max(1, int(round(h * scale)))
+    x0, y0 = (w - cw) // 2, (h - ch) // 2
+    return image[y0 : y0 + ch, x0 : x0 + cw]
+
+
+def fit_aspect(image: np.ndarray, aspect: float, fit: Fit) -> np.ndarray:
+    """``squash``: unchanged (the network's resize squashes it); ``crop``: the centre with the given
+    width / height; ``pad``: black borders up to it."""
+    if fit == "squash":
+        return image
+    h, w = image.shape[:2]
+    if abs(w / h - aspect) < 1e-6:
+        return image
+    if fit == "crop":
+        if w / h > aspect:
+            cw = int(round(h * aspect))
+            x0 = (w - cw) // 2
+            return image[:, x0 : x0 + cw]
+        ch = int(round(w / aspect))
+        y0 = (h - ch) // 2
+        return image[y0 : y0 + ch]
+    if w / h > aspect:
+        size = (int(round(w / aspect)), w)
+    else:
+        size = (h, int(round(h * aspect)))
+    out = np.zeros((*size, image.shape[2]), dtype=image.dtype)
+    y0, x0 = (size[0] - h) // 2, (size[1] - w) // 2
+    out[y0 : y0 + h, x0 : x0 + w] = image
+    return out
