@@ -45,6 +45,7 @@ from .errors import InputError
 from .estimate import Candidate, Estimate, Evidence
 from .frame import Frame
 from .images import check_frame
+from .inputcheck import InputCheck
 from .matcher import MatchResult, PlaceMatcher
 from .refmap import ReferenceMap
 from .search import top_k
@@ -67,6 +68,7 @@ class Localizer:
         self.hubs = ReferenceNormaliser(seq.reference_prior)
         self.tracker = RouteTracker(self.config.tracker)
         self._last_timestamp: float | None = None
+        self.input_check = InputCheck.for_map(refmap.manifest)
 
     def reset(self) -> None:
         """Forget everything seen so far (start of a new traverse)."""
@@ -89,6 +91,7 @@ class Localizer:
                 )
         opposite = self._declared_opposite(frame)
         result = self.matcher.match(frame.image, opposite=opposite)
+        self.input_check(frame.id, frame.image, result.query_labels)
         if frame.timestamp is not None:
             self._last_timestamp = frame.timestamp
         estimate = self.update(frame, result)
