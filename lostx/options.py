@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import math
 import sys
 import time
 from pathlib import Path
@@ -11,9 +12,41 @@ from typing import TYPE_CHECKING
 
 from lostx.core.config import Config, load_config
 
+DEFAULTS = Config()
+
 if TYPE_CHECKING:
     from lostx.core.refmap import ReferenceMap
     from lostx.viz.sink import RerunSink
+
+
+def whole_number(minimum: int = 1):
+    """argparse ``type``: an integer of at least ``minimum``, or a one-line error naming the value."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"must be at least {minimum}, got {value}")
+        return value
+
+    return parse
+
+
+def number(minimum: float = 0.0, above: bool = False):
+    """argparse ``type``: a finite number of at least ``minimum`` (or above it, with ``above``)."""
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+        if not math.isfinite(value) or value < minimum or (above and value == minimum):
+            raise argparse.ArgumentTypeError(f"must be {'above' if above else 'at least'} {minimum:g}, got {text}")
+        return value
+
+    return parse
 
 
 def add_backbone_options(parser: argparse.ArgumentParser) -> None:
@@ -21,16 +54,22 @@ def add_backbone_options(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--backbone", help="semantic backbone name (see `lostx backbones`)")
     group.add_argument("--model", type=Path, help="model file of the backbone (default: in ../shared/models)")
     group.add_argument("--device", help="cpu, cuda or cuda:N (PyTorch backbones)")
-    group.add_argument("--threads", type=int, help="CPU threads for the network")
+    group.add_argument("--threads", type=whole_number(1), metavar="N",
+                       help=f"CPU threads for the network (default {DEFAULTS.backbone.threads})")
 
 
-def add_config_options(parser: argparse.ArgumentParser) -> None:
+def add_config_options(parser: argparse.ArgumentParser, matching: bool = True) -> None:
+    """``--config`` and the backbone options; with ``matching``, also the options of the matching stages."""
     parser.add_argument("--config", type=Path, help="TOML file of settings (see docs/config.md)")
     add_backbone_options(parser)
+    if not matching:
+        return
     group = parser.add_argument_group("matching")
     group.add_argument("--scoring", choices=["eq4-lost", "eq4", "released"], help="verification score")
-    group.add_argument("--top-k", type=int, help="candidates verified per query (default 10)")
-    group.add_argument("--window", type=int, help="frames in the sequence filter's window (default 20)")
+    group.add_argument("--top-k", type=whole_number(1), metavar="K",
+                       help=f"candidates verified per query (default {DEFAULTS.verify.top_k})")
+    group.add_argument("--window", type=whole_number(1), metavar="L",
+                       help=f"frames in the sequence filter's window (default {DEFAULTS.sequence.length})")
     group.add_argument("--no-tracker", action="store_true", help="answer without the route tracker")
 
 
@@ -44,10 +83,10 @@ def config_from_args(args: argparse.Namespace) -> Config:
     verify = config.verify
     if getattr(args, "scoring", None):
         verify = dataclasses.replace(verify, scoring=args.scoring)
-    if getattr(args, "top_k", None):
+    if getattr(args, "top_k", None) is not None:
         verify = dataclasses.replace(verify, top_k=args.top_k)
     sequence, tracker = config.sequence, config.tracker
-    if getattr(args, "window", None):
+    if getattr(args, "window", None) is not None:
         sequence = dataclasses.replace(sequence, length=args.window)
     if getattr(args, "no_tracker", False):
         tracker = dataclasses.replace(tracker, enabled=False)

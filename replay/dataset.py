@@ -18,18 +18,16 @@ is ``folder``.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Literal
 
 from lostx.core.errors import InputError
 from lostx.core.frame import Camera
 from lostx.core.images import list_images
 
 from .folder import Traverse, folder_traverse
+from .formats import FORMATS, Format
 from .robotcar import is_robotcar, robotcar_traverse
 from .vprbench import is_vprbench
 
-Format = Literal["folder", "robotcar", "vprbench", "pairs"]
-FORMATS: tuple[str, ...] = ("folder", "robotcar", "vprbench", "pairs")
 POSITIONS_FILE = "positions.csv"
 
 

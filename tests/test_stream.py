@@ -611,9 +611,13 @@ def demo_workdir(tmp_path_factory) -> Path:
     return tmp_path_factory.mktemp("demo")
 
 
-def test_demo_runs_the_whole_loop(demo_workdir, robotcar):
+def test_demo_runs_the_whole_loop(demo_workdir, robotcar, tmp_path):
+    # Run from a folder holding a clone named lostx/, as the README's layout has it: the demo and its
+    # children must import the installed package, not that folder.
+    (tmp_path / "lostx").mkdir()
+    (tmp_path / "lostx" / "README.md").write_text("a clone")
     done = subprocess.run(lostx_command("demo", "--workdir", str(demo_workdir), "--data", str(robotcar.parent),
-                                        "--rate", "3"), capture_output=True, text=True, timeout=300)
+                                        "--rate", "3"), capture_output=True, text=True, timeout=300, cwd=tmp_path)
     assert done.returncode == 0, done.stderr
     rows = [line for line in done.stdout.splitlines() if line.strip().endswith(("exact", "+-1", "wrong"))]
     answered = re.search(r"night -> day \(answered (\d+) of 10", done.stdout)
@@ -621,7 +625,9 @@ def test_demo_runs_the_whole_loop(demo_workdir, robotcar):
                          done.stdout)
     single = re.search(r"single frame: +(\d+)/(\d+) exact, (\d+)/(\d+) within one frame", done.stdout)
     assert answered and sequence and single, done.stdout
-    assert int(answered.group(1)) == int(sequence.group(2)) == int(single.group(2)) == len(rows) >= 5
+    # Lossless: every frame is answered, however loaded the machine.
+    assert int(answered.group(1)) == int(sequence.group(2)) == int(single.group(2)) == len(rows) == 10
+    assert sum("warming up" in row for row in rows) == 2  # the 3-frame window fills on the third frame
     assert int(sequence.group(3)) == len(rows)  # every answer within one frame of the truth (measured)
     assert "the authors' LoST-X on the same frames (single frame): 6/10 exact, 8/10 within one frame" in done.stdout
 

@@ -7,11 +7,13 @@ import json
 import sys
 from dataclasses import asdict
 from pathlib import Path
-from typing import IO
+from typing import IO, TYPE_CHECKING
 
-from lostx.options import add_client_key_options, client_keys_from_args
-from lostx.stream.client import Listener
-from lostx.stream.protocol import ErrorMessage, Result, Stats
+from lostx.display import drop_line, state_label, warm_up_line
+from lostx.options import add_client_key_options, client_keys_from_args, number, whole_number
+
+if TYPE_CHECKING:
+    from lostx.stream.protocol import ErrorMessage, Result, Stats
 
 HEADER = f"{'frame':>7s}  {'state':<13s}  {'match':>6s}  {'name':<18s}  {'conf':>5s}  {'score':>9s}  {'seq':>8s}  {'ms':>6s}"
 
@@ -21,8 +23,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("endpoint", help="the service's results endpoint, e.g. tcp://127.0.0.1:5556")
     parser.add_argument("--jsonl", type=Path, metavar="FILE",
                         help="write every message (result, error, stats) as a JSON line to FILE ('-': stdout)")
-    parser.add_argument("--count", type=int, metavar="N", help="exit after N results")
-    parser.add_argument("--timeout", type=float, metavar="S", help="exit after S seconds without any message")
+    parser.add_argument("--count", type=whole_number(1), metavar="N", help="exit after N results")
+    parser.add_argument("--timeout", type=number(0, above=True), metavar="S",
+                        help="exit after S seconds without any message")
     parser.add_argument("--until-stopped", action="store_true",
                         help="exit when the service announces it is stopping (its final stats)")
     parser.add_argument("--quiet", action="store_true", help="no table (with --jsonl FILE)")
@@ -31,13 +34,17 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from lostx.core.outputs import check_output_file
+    from lostx.stream.client import Listener
+    from lostx.stream.protocol import ErrorMessage, Result
+
     keys = client_keys_from_args(args)
     to_stdout = args.jsonl is not None and str(args.jsonl) == "-"
     table = not args.quiet and not to_stdout
     out: IO[str] | None = None
     if args.jsonl is not None:
-        out = sys.stdout if to_stdout else open(args.jsonl, "a", encoding="utf-8")
-    n_results = rows = 0
+        out = sys.stdout if to_stdout else open(check_output_file(args.jsonl, "--jsonl"), "a", encoding="utf-8")
+    n_results = rows = warming = seen = 0
     last_stats: Stats | None = None
     try:
         with Listener(args.endpoint, keys=keys) as listener:
@@ -52,6 +59,8 @@ def run(args: argparse.Namespace) -> int:
                     out.flush()
                 if isinstance(message, Result):
                     n_results += 1
+                    warming += message.warming_up
+                    seen = max(seen, message.window)
                     if table:
                         if rows % 40 == 0:
                             print(HEADER)
@@ -75,13 +84,16 @@ def run(args: argparse.Namespace) -> int:
     if table:
         print(f"{n_results} results" + (f"; service: {format_stats(last_stats)}" if last_stats else ""),
               file=sys.stderr)
+        for line in (warm_up_line(warming, n_results, seen), drop_line(last_stats) if last_stats else None):
+            if line:
+                print(line, file=sys.stderr)
     return 0
 
 
 def format_result(r: Result) -> str:
     score = "-" if r.score is None else f"{r.score:.4g}"
     seq = "-" if r.sequence_score is None else f"{r.sequence_score:.4g}"
-    return (f"{r.frame_id:7d}  {r.state:<13s}  {r.match_index:6d}  {r.match_name[:18]:<18s}  "
+    return (f"{r.frame_id:7d}  {state_label(r):<13s}  {r.match_index:6d}  {r.match_name[:18]:<18s}  "
             f"{r.confidence:5.2f}  {score:>9s}  {seq:>8s}  {r.latency_ms.get('total', 0.0):6.1f}")
 
 
@@ -93,6 +105,8 @@ def format_stats(s: Stats) -> str:
 
 
 def _plain(message: Result | ErrorMessage | Stats) -> dict:
+    from lostx.stream.protocol import ErrorMessage, Result
+
     if isinstance(message, Result):
         return {"type": "result", **message.to_dict()}
     if isinstance(message, ErrorMessage):

@@ -6,12 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from lostx.core.errors import InputError
-from lostx.options import add_client_key_options, client_keys_from_args
-from lostx.replay.dataset import open_traverse
-from lostx.replay.pace import Pace, check_realtime
-from lostx.stream.producer import FramePublisher
-from lostx.stream.replay import replay
+from lostx.options import add_client_key_options, client_keys_from_args, number
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -22,7 +17,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("--to", required=True, metavar="ENDPOINT",
                         help="the service's frames endpoint, e.g. tcp://127.0.0.1:5555")
     pace = parser.add_mutually_exclusive_group()
-    pace.add_argument("--rate", type=float, metavar="HZ", help="frames per second (default 10, or --realtime "
+    pace.add_argument("--rate", type=number(0, above=True), metavar="HZ",
+                      help="frames per second (default 10, or --realtime "
                       "where the traverse has timestamps)")
     pace.add_argument("--realtime", action="store_true", help="at the recorded rate (needs timestamps)")
     pace.add_argument("--as-fast-as-possible", action="store_true", help="no pacing (lossless services still "
@@ -41,7 +37,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                      help="raw pixels (default: exact and cheapest on one machine), png (exact), jpeg (networks)")
     enc.add_argument("--jpeg-quality", type=int, metavar="Q", help="JPEG quality 1-100 (implies --encoding jpeg; "
                      "default 90)")
-    parser.add_argument("--wait", type=float, metavar="S", help="give up if no service answers within S seconds "
+    parser.add_argument("--wait", type=number(0), metavar="S", help="give up if no service answers within S seconds "
                         "(default: wait)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     add_client_key_options(parser)
@@ -51,10 +47,17 @@ def register(sub: argparse._SubParsersAction) -> None:
 def open_source(path: Path, format: str | None, positions: Path | None, camera: str, mirror: bool):
     """A traverse from SOURCE through the dataset readers (any sized, re-iterable collection of Frames
     would do: the replay itself knows nothing of formats)."""
+    from lostx.replay.dataset import open_traverse
+
     return open_traverse(path, format, camera, positions, mirror)  # type: ignore[arg-type]
 
 
 def run(args: argparse.Namespace) -> int:
+    from lostx.core.errors import InputError
+    from lostx.replay.pace import Pace, check_realtime
+    from lostx.stream.producer import FramePublisher
+    from lostx.stream.replay import replay
+
     if args.jpeg_quality is not None and not 1 <= args.jpeg_quality <= 100:
         raise InputError(f"--jpeg-quality must be 1-100, got {args.jpeg_quality}")
     if args.jpeg_quality is not None and args.encoding not in (None, "jpeg"):

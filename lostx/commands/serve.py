@@ -5,10 +5,9 @@ from __future__ import annotations
 import argparse
 import signal
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from lostx.core.errors import InputError
-from lostx.core.localizer import Localizer
-from lostx.core.refmap import ReferenceMap
+from lostx.display import drop_line
 from lostx.options import (
     add_config_options,
     add_stream_options,
@@ -17,10 +16,9 @@ from lostx.options import (
     stream_config_from_args,
     viewer_sink_from_args,
 )
-from lostx.sinks import resolve_sink
-from lostx.stream.service import LocalizerService
-from lostx.stream.sinks import JsonlSink
-from lostx.stream.sockets import ServerKeys
+
+if TYPE_CHECKING:
+    from lostx.stream.service import LocalizerService
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -44,9 +42,20 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from lostx.core.errors import InputError
+    from lostx.core.localizer import Localizer
+    from lostx.core.outputs import check_output_file
+    from lostx.core.refmap import ReferenceMap
+    from lostx.sinks import resolve_sink
+    from lostx.stream.service import LocalizerService
+    from lostx.stream.sinks import JsonlSink
+    from lostx.stream.sockets import ServerKeys
+
     stop = _SignalStop()
     with stop:
         config = stream_config_from_args(args, config_from_args(args))
+        if args.jsonl:
+            check_output_file(args.jsonl, "--jsonl")
         keys = None
         if args.curve_secret or args.curve_clients:
             if not (args.curve_secret and args.curve_clients):
@@ -66,6 +75,9 @@ def run(args: argparse.Namespace) -> int:
             final = service.run()
     service.log(f"answered {final.answered} of {final.received} frames ({final.dropped} dropped, "
                 f"{final.missing} missing, {final.errors} errors) in {final.uptime_s:.1f} s")
+    dropped = drop_line(final)
+    if dropped:
+        service.log(dropped)
     return 0
 
 
