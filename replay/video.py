@@ -112,14 +112,16 @@ def video_traverse(path: str | Path, camera: Camera | None = None, mirror: bool 
         if not ok or first is None:
             raise InputError(f"cannot read video {path}: no decodable frame")
         fps = float(capture.get(cv2.CAP_PROP_FPS) or 0.0)
-        count = int(capture.get(cv2.CAP_PROP_FRAME_COUNT) or 0)
+        declared = int(capture.get(cv2.CAP_PROP_FRAME_COUNT) or 0)
         notes: list[str] = []
-        if count <= 0:
-            # Some containers (raw streams, some recorders) do not say: count by decoding.
-            count = 1
+        count = declared if declared > 0 and _decodes(capture, declared - 1) else 0
+        if count == 0:
+            # The container does not say, or says more than there is (a recording cut short): count by decoding.
+            capture.set(cv2.CAP_PROP_POS_FRAMES, 0)
             while capture.grab():
                 count += 1
-            notes.append(f"{path.name} declares no frame count: counted {count} frames by decoding")
+            said = f"declares {declared} frames" if declared > 0 else "declares no frame count"
+            notes.append(f"{path.name} {said}: counted {count} by decoding")
     finally:
         capture.release()
     timestamps = None
@@ -130,3 +132,10 @@ def video_traverse(path: str | Path, camera: Camera | None = None, mirror: bool 
     return Traverse(path.name, VideoFrames(path, count), timestamps=timestamps, camera=camera, mirror=mirror,
                     notes=notes)
 
+
+
+def _decodes(capture: cv2.VideoCapture, row: int) -> bool:
+    """Can frame ``row`` be decoded (the last frame a container declares is not always there)?"""
+    capture.set(cv2.CAP_PROP_POS_FRAMES, row)
+    ok, image = capture.read()
+    return bool(ok) and image is not None

@@ -101,7 +101,7 @@ def test_a_camera_that_cannot_be_opened_is_one_line():
     proc = lostx("replay", "camera:9", "--to", "tcp://127.0.0.1:9")
     assert_one_line_error(proc, "cannot open camera 9 (camera:9)")
     proc = lostx("replay", "camera:9", "--to", "tcp://127.0.0.1:9", "--loop", "--rate", "5")
-    assert_one_line_error(proc, "camera:9 is a live camera; --rate, --loop only go with a recording")
+    assert_one_line_error(proc, "camera:9 is a live camera; --rate, --loop are for recordings only")
 
 
 def test_a_camera_faster_than_the_localizer_is_answered_newest_first(day_map, robotcar, procs, tmp_path):

@@ -124,3 +124,16 @@ def test_unreadable_videos_are_one_line_errors(tmp_path, day_map):
     with pytest.raises(InputError, match="notes.txt: a file, but neither an MCAP bag"):
         (tmp_path / "notes.txt").write_text("hello")
         open_traverse(tmp_path / "notes.txt")
+
+
+def test_a_recording_cut_short_is_read_up_to_where_it_ends(robotcar, tmp_path):
+    whole = tmp_path / "whole.avi"
+    writer = cv2.VideoWriter(str(whole), cv2.VideoWriter_fourcc(*"MJPG"), FPS, (256, 160))
+    for file in list_images(robotcar / "night"):
+        writer.write(cv2.resize(cv2.imread(str(file)), (256, 160)))
+    writer.release()
+    cut = tmp_path / "cut.avi"
+    cut.write_bytes(whole.read_bytes()[: int(whole.stat().st_size * 0.75)])  # the index still says 10 frames
+    video = open_traverse(cut)
+    assert len(video) < 10 and len(list(video)) == len(video)
+    assert video.notes == [f"cut.avi declares 10 frames: counted {len(video)} by decoding"]

@@ -98,7 +98,8 @@ def _run_camera(args: argparse.Namespace, index: int, camera: str | None, encodi
     misplaced = [flag for flag, given in for_recordings.items() if given]
     misplaced += source_options_from_args(args).misplaced("camera")
     if misplaced:
-        raise InputError(f"camera:{index} is a live camera; {', '.join(misplaced)} only go with a recording")
+        raise InputError(f"camera:{index} is a live camera; {', '.join(misplaced)} "
+                         f"{'is' if len(misplaced) == 1 else 'are'} for recordings only")
     with LiveCamera(index, camera) as live, _publisher(args, encoding, live.name) as publisher:  # type: ignore[arg-type]
         if not args.quiet:
             print(f"streaming {live.name} to {args.to} ({encoding}, newest frame first); waiting for the "
