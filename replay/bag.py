@@ -13,11 +13,14 @@ Needs the ``mcap`` and ``mcap-ros2-support`` packages (``pip install "lostx[bags
 
 from __future__ import annotations
 
+import struct
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import Any, Callable, Iterator, Sequence
 
 import numpy as np
+from tqdm import tqdm
 
 from lostx.core.errors import ImageError, InputError, LostxError
 from lostx.core.frame import Camera
@@ -106,8 +109,14 @@ class BagFile:
         """(log time, decode) of each message on ``topic`` (only those logged at ``at``, when given)."""
         bounds = {} if at is None else {"starting_at": at, "ending_at": at}
         for schema, channel, message in self._guard(self._reader.iter_messages(topics=[topic], **bounds)):
-            decoder = self._decoder(schema, channel)
-            yield message.log_time, (lambda data=message.data, decode=decoder: decode(data))
+            yield message.log_time, partial(self._decode, self._decoder(schema, channel), message)
+
+    def _decode(self, decoder: Callable[[bytes], Any], message: Any) -> Any:
+        try:
+            return decoder(message.data)
+        except (self._error, struct.error, ValueError, IndexError, UnicodeDecodeError, EOFError) as exc:
+            raise InputError(f"{self.path}: a message logged at {message.log_time} ns cannot be decoded "
+                             f"({type(exc).__name__}: {exc})") from None
 
     def _decoder(self, schema: Any, channel: Any) -> Callable[[bytes], Any]:
         decoder = self._decoders.get(channel.id)
@@ -274,7 +283,7 @@ def bag_traverse(
         if len(found) > 1:
             notes.append(f"{len(found)} pose topics ({', '.join(t.name for t in found)}) and no --pose-topic: "
                          f"no positions")
-        file_index, log_time, rank, stamps = _index_images(bags, image_topic.name)
+        file_index, log_time, rank, stamps = _index_images(bags, image_topic)
         if len(stamps) == 0:
             raise InputError(f"{path}: topic {image_topic.name} has no messages")
         if np.any(stamps == 0):
@@ -330,10 +339,14 @@ def _ranked(messages: Iterator[tuple[int, Callable[[], Any]]]) -> Iterator[tuple
         yield logged, same, decode
 
 
-def _index_images(bags: list[BagFile], topic: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _index_images(bags: list[BagFile], topic: Topic) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(file, log time, rank, header stamp) of every message on ``topic``."""
-    rows = [(index, logged, same, stamp_ns(decode()))
-            for index, bag in enumerate(bags) for logged, same, decode in _ranked(bag.messages(topic))]
+    messages = ((index, logged, same, decode)
+                for index, bag in enumerate(bags) for logged, same, decode in _ranked(bag.messages(topic.name)))
+    # A bar only when it takes a while (a long recording of raw images).
+    progress = tqdm(messages, total=topic.messages, desc=f"reading {topic.name}", unit="image", delay=2.0,
+                    leave=False)
+    rows = [(index, logged, same, stamp_ns(decode())) for index, logged, same, decode in progress]
     table = np.asarray(rows, dtype=np.int64).reshape(-1, 4)
     return table[:, 0], table[:, 1], table[:, 2], table[:, 3]
 

@@ -213,3 +213,21 @@ def test_files_that_are_not_bags(tmp_path):
     truncated.write_bytes(whole.read_bytes()[: whole.stat().st_size // 2])
     with pytest.raises(InputError, match="cut.mcap: not a readable MCAP bag"):
         bag_traverse(truncated)
+
+
+def test_a_message_that_cannot_be_decoded_is_named(tmp_path):
+    from mcap.well_known import SchemaEncoding
+    from mcap.writer import Writer
+
+    from rosbags import definition
+
+    with open(tmp_path / "corrupt.mcap", "wb") as handle:
+        writer = Writer(handle)
+        writer.start(profile="ros2")
+        schema = writer.register_schema("sensor_msgs/msg/Image", SchemaEncoding.ROS2,
+                                        definition("sensor_msgs/msg/Image").encode())
+        channel = writer.register_channel("/image", "cdr", schema)
+        writer.add_message(channel, log_time=5, publish_time=5, data=b"\x00\x01\x00\x00\x05")  # a cut-off message
+        writer.finish()
+    with pytest.raises(InputError, match="corrupt.mcap: a message logged at 5 ns cannot be decoded"):
+        bag_traverse(tmp_path / "corrupt.mcap")
