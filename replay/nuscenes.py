@@ -7,12 +7,12 @@ Two layouts are read:
 - a nuScenes download: ``<root>/v1.0-*/`` and ``<root>/samples/<CHANNEL>/<file>``;
   give ``<root>`` (with a scene and a channel) or ``<root>/samples/<CHANNEL>``;
 - any folder of nuScenes camera images (their file names as published) with the
-  tables in a ``v1.0-*`` folder beside it or up to three levels above, e.g.
-  ``scene-0523/front/`` beside ``v1.0-mini-extract/``; the channel and scene are
-  read from the images' records.
+  tables in a ``v1.0-*`` folder in it or up to three levels above, e.g.
+  ``nuscenes-frontrear/scene-0523/front/`` with ``nuscenes-frontrear/v1.0-mini-extract/``;
+  the channel and scene are read from the images' records.
 
-Frames are the channel's key frames (2 Hz) of the scene in time order (``sweeps``: also
-the frames between them, where their files are present). Positions are the ego
+Frames are the channel's key frames (2 Hz) of the scene in time order (a folder of
+the frames between them, ``sweeps/<CHANNEL>``, gives those). Positions are the ego
 vehicle's (x, y) in the map frame at each image's capture time, or, with ``look_at``,
 the point that many metres from it along the direction the camera faces (the
 vehicle's heading turned by the channel's nominal mounting direction). Each frame's
@@ -145,7 +145,6 @@ def nuscenes_traverse(
     camera: Camera | None = None,
     look_at: float | None = None,
     mirror: bool = False,
-    sweeps: bool = False,
 ) -> Traverse:
     """One camera channel of one scene (see the module docstring for the layouts and the fields).
 
@@ -166,7 +165,7 @@ def nuscenes_traverse(
     if images_here:
         records, located = _records_of_folder(tables, path, images_here, scene, channel)
     else:
-        records, located = _records_of_root(tables, path, scene, channel or DEFAULT_CHANNEL, sweeps)
+        records, located = _records_of_root(tables, path, scene, channel or DEFAULT_CHANNEL)
     notes: list[str] = []
     present = [r for r in records if r["token"] in located]
     if len(present) < len(records):
@@ -221,13 +220,13 @@ def _records_of_folder(tables: Tables, folder: Path, images: dict[str, Path], sc
                     if Path(r["filename"]).name in images}
 
 
-def _records_of_root(tables: Tables, root: Path, scene: str | None, channel: str,
-                     sweeps: bool) -> tuple[list[dict], dict[str, Path]]:
-    """The records of ``channel`` at a nuScenes root, with their files where they are: at their
+def _records_of_root(tables: Tables, root: Path, scene: str | None,
+                     channel: str) -> tuple[list[dict], dict[str, Path]]:
+    """The key frames of ``channel`` at a nuScenes root, with their files where they are: at their
     ``filename`` (a download), or by name in a folder inside ``<root>/<scene name>/``."""
     if channel not in CHANNEL_YAW_DEG:
         raise InputError(f"unknown nuScenes camera channel {channel!r}; expected one of {', '.join(CHANNEL_YAW_DEG)}")
-    of_channel = [r for r in tables.records if tables.channel(r) == channel and (sweeps or r["is_key_frame"])]
+    of_channel = [r for r in tables.records if tables.channel(r) == channel and r["is_key_frame"]]
     located = {}
     copied: dict[str, dict[str, Path]] = {}
     for r in of_channel:
