@@ -71,8 +71,7 @@ class Run:
 
 
 def _fingerprint(traverse: Traverse, extra: dict) -> str:
-    files = [(f.name, f.stat().st_size, f.stat().st_mtime_ns) for f in traverse.files]
-    payload = json.dumps({"files": files, "mirror": traverse.mirror, **extra}, sort_keys=True, default=str)
+    payload = json.dumps({"frames": traverse.fingerprint(), **extra}, sort_keys=True, default=str)
     return hashlib.sha256(payload.encode()).hexdigest()[:16]
 
 

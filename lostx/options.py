@@ -93,6 +93,45 @@ def config_from_args(args: argparse.Namespace) -> Config:
     return dataclasses.replace(config, backbone=backbone, verify=verify, sequence=sequence, tracker=tracker)
 
 
+SOURCE_FORMATS = ("folder", "robotcar", "bag", "video", "nuscenes")
+
+
+def add_source_options(parser: argparse.ArgumentParser, *, format: bool = True, reverse: bool = False) -> None:
+    """How to read a traverse: its format, a bag's topics, a nuScenes scene, which frames (docs/datasets.md)."""
+    group = parser.add_argument_group("source (see docs/datasets.md)")
+    if format:
+        group.add_argument("--format", choices=SOURCE_FORMATS, help="the source's format (default: recognised)")
+    group.add_argument("--topic", help="bag: the image topic (sensor_msgs/Image or CompressedImage; "
+                       "default: the bag's only one)")
+    group.add_argument("--pose-topic", metavar="TOPIC", help="bag: the positions topic (Odometry, PoseStamped "
+                       "or NavSatFix; default: the bag's only one)")
+    group.add_argument("--scene", help="nuScenes: the scene, e.g. scene-0523 (default: the only one with images)")
+    group.add_argument("--channel", help="nuScenes: the camera channel at a dataset root (default CAM_FRONT)")
+    group.add_argument("--look-at", type=float, nargs="?", const=15.0, metavar="M",
+                       help="nuScenes: positions M metres along the camera's heading (default 15) instead of "
+                            "the vehicle's")
+    frames = group.add_mutually_exclusive_group()
+    frames.add_argument("--every", type=int, metavar="N", help="keep every N-th frame")
+    frames.add_argument("--fps", type=float, metavar="F", help="keep F frames per second of recorded time")
+    if reverse:
+        group.add_argument("--reverse", action="store_true", help="the frames in reverse order, timestamps "
+                           "reflected: the route driven the other way")
+
+
+def source_options_from_args(args: argparse.Namespace):
+    """The :class:`~lostx.replay.dataset.SourceOptions` the command line gives."""
+    from lostx.replay.dataset import SourceOptions
+
+    return SourceOptions(topic=args.topic, pose_topic=args.pose_topic, scene=args.scene, channel=args.channel,
+                         look_at=args.look_at, every=args.every, fps=args.fps)
+
+
+def print_notes(notes: list[str]) -> None:
+    """What the readers skipped or assumed, one line each."""
+    for note in notes:
+        print(f"note: {note}")
+
+
 def add_stream_options(parser: argparse.ArgumentParser) -> None:
     """Settings of the service (``[stream]`` in a --config file; these override it)."""
     group = parser.add_argument_group("stream (see docs/protocol.md)")

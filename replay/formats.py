@@ -3,5 +3,5 @@ without loading the readers)."""
 
 from typing import Literal
 
-Format = Literal["folder", "robotcar", "vprbench", "pairs"]
-FORMATS: tuple[str, ...] = ("folder", "robotcar", "vprbench", "pairs")
+Format = Literal["folder", "robotcar", "bag", "video", "nuscenes", "vprbench", "pairs"]
+FORMATS: tuple[str, ...] = ("folder", "robotcar", "bag", "video", "nuscenes", "vprbench", "pairs")

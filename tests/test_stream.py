@@ -511,8 +511,7 @@ def _replay_into_fake(source, tmp_path: Path, name: str, **kwargs) -> list[wire.
 
 
 def test_replay_is_deterministic_and_loops_with_fresh_ids_and_streams(nordland_subset, tmp_path):
-    source = folder_traverse(nordland_subset)
-    source.files = source.files[:20]
+    source = folder_traverse(nordland_subset).subset(range(20))
     runs = [_replay_into_fake(source, tmp_path, f"run{i}") for i in range(2)]
     for frames in runs:
         assert [m.id for m in frames] == list(range(20))

@@ -159,7 +159,7 @@ def _stream(args: argparse.Namespace, refmap: ReferenceMap, night, tmp: Path) ->
 def _row(r: Result, night, refmap: ReferenceMap) -> str:
     corr = r.candidates[0].correspondences if r.candidates else 0
     state = state_label(r)
-    return (f"{night.files[r.frame_id].name:>14s}  {r.frame_id:>5d}  {r.match_index:>5d}  {r.single_match_index:>6d}  "
+    return (f"{night.names[r.frame_id]:>14s}  {r.frame_id:>5d}  {r.match_index:>5d}  {r.single_match_index:>6d}  "
             f"{state:>13s}  {r.confidence:5.2f}  {corr:4d}  {_mark(r.match_index, r.frame_id)}")
 
 

@@ -1,4 +1,4 @@
-"""``lostx eval --reference DIR --query DIR --out REPORT_DIR``: several methods, their metrics, plots, a report."""
+"""``lostx eval --reference SOURCE --query SOURCE --out REPORT_DIR``: several methods, their metrics, plots, a report."""
 
 from __future__ import annotations
 
@@ -9,7 +9,9 @@ from typing import TYPE_CHECKING, Any
 
 from lostx import __version__
 from lostx.evaluation.catalogue import METHODS, MODES
-from lostx.options import add_config_options, config_from_args, number
+from lostx.options import (
+    add_config_options, add_source_options, config_from_args, number, print_notes, source_options_from_args,
+)
 from lostx.replay.formats import FORMATS
 
 if TYPE_CHECKING:
@@ -20,11 +22,16 @@ if TYPE_CHECKING:
 
 def register(sub: argparse._SubParsersAction) -> None:
     parser = sub.add_parser("eval", help="evaluate LoST-X and baselines on a reference/query pair")
-    parser.add_argument("--reference", type=Path, required=True, help="reference traverse (the map)")
+    parser.add_argument("--reference", type=Path, required=True,
+                        help="reference traverse (the map): a folder, a RobotCar folder, a bag, a video, a nuScenes "
+                             "scene, or a VPR-Bench dataset (see docs/datasets.md)")
     parser.add_argument("--query", type=Path, help="query traverse (not for a VPR-Bench folder)")
-    parser.add_argument("--format", choices=FORMATS, help="dataset layout (default: recognised from the folders)")
+    parser.add_argument("--format", choices=FORMATS, help="dataset layout (default: recognised from the paths)")
     parser.add_argument("--out", type=Path, required=True, help="report folder to write")
-    parser.add_argument("--opposite", action="store_true", help="the query camera faces opposite to the reference's")
+    camera = parser.add_mutually_exclusive_group()
+    camera.add_argument("--query-camera", choices=["front", "rear"],
+                        help="declare the query camera's direction (default: as the source declares it)")
+    camera.add_argument("--opposite", action="store_true", help="the query camera faces opposite to the reference's")
     parser.add_argument("--mirror-query", action="store_true",
                         help="flip the query images left-right (a test of the flip handling, not an opposite view)")
     parser.add_argument("--reference-positions", type=Path, help="positions CSV of the reference images")
@@ -38,6 +45,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("--modes", nargs="+", choices=list(MODES), default=list(MODES))
     parser.add_argument("--cache", type=Path, help="cache of network outputs (default: REPORT_DIR/cache)")
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
+    add_source_options(parser, format=False, reverse=True)
     add_config_options(parser)
     parser.set_defaults(run=run)
 
@@ -63,12 +71,12 @@ def run(args: argparse.Namespace) -> int:
     check_output_folder(cache, "--cache")
     pair = open_pair(
         args.reference, args.query, args.format,
-        query_camera="rear" if args.opposite else None,
+        query_camera="rear" if args.opposite else args.query_camera,
         reference_positions=args.reference_positions, query_positions=args.query_positions,
         mirror_query=args.mirror_query, spacing=args.spacing,
+        options=source_options_from_args(args), reverse_query=args.reverse,
     )
-    for note in pair.notes:
-        print(f"note: {note}")
+    print_notes(pair.notes)
     runs, truths = evaluate_pair(pair, config, cache, args.methods, args.modes, args.tolerances, args.unit,
                                  progress=not args.quiet)
     entries = [report_entry(r.method, r.mode, e, label=METHODS[r.method]) for r in runs for e in r.evaluations]

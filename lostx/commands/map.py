@@ -5,22 +5,32 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from lostx.options import add_config_options, config_from_args
+from lostx.options import (
+    add_config_options,
+    add_source_options,
+    config_from_args,
+    print_notes,
+    source_options_from_args,
+)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     parser = sub.add_parser("map", help="build or inspect reference maps")
     verbs = parser.add_subparsers(dest="verb", metavar="VERB", required=True)
 
-    build = verbs.add_parser("build", help="build a reference map from a folder of images (name order)")
-    build.add_argument("images", type=Path, help="folder of the traverse's images")
+    build = verbs.add_parser("build", help="build a reference map from a traverse (images, a bag, a video, ...)")
+    build.add_argument("source", type=Path, help="the traverse: a folder of images (name order), a RobotCar "
+                       "folder, a ROS 2 bag (.mcap), a video, a nuScenes scene (see docs/datasets.md)")
     build.add_argument("--out", type=Path, required=True, help="map folder to write")
-    build.add_argument("--positions", type=Path, help="CSV of positions (file,x,y or lat,lon; optional timestamp)")
-    build.add_argument("--camera", choices=["front", "rear"], default="front", help="camera direction of the traverse")
+    build.add_argument("--positions", type=Path, help="CSV of positions (file,x,y or lat,lon; optional timestamp); "
+                       "RobotCar: the INS CSV")
+    build.add_argument("--camera", choices=["front", "rear"],
+                       help="camera direction of the traverse (default: as the source declares it, else front)")
     build.add_argument("--descriptor", choices=["lost", "thumbnail"], default="lost",
                        help="LoST-X (default) or SeqSLAM thumbnails (no network)")
     build.add_argument("--overwrite", action="store_true", help="replace an existing map at --out")
     build.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_source_options(build)
     add_config_options(build, matching=False)
     build.set_defaults(run=run_build)
 
@@ -36,16 +46,19 @@ def run_build(args: argparse.Namespace) -> int:
     from lostx.core.describe import LostDescriber
     from lostx.core.outputs import check_output_folder
     from lostx.core.thumbnail import ThumbnailDescriber
-    from lostx.replay.folder import folder_traverse
+    from lostx.replay.dataset import open_traverse
 
     config = config_from_args(args)
     check_output_folder(args.out, "--out")
-    traverse = folder_traverse(args.images, args.positions, camera=args.camera)
+    traverse = open_traverse(args.source, args.format, args.camera, args.positions,
+                             options=source_options_from_args(args))
+    print_notes(traverse.notes)
+    camera = traverse.camera or "front"
     if args.descriptor == "lost":
         describer: LostDescriber | ThumbnailDescriber = LostDescriber(load_backbone(config.backbone), config.lost)
     else:
         describer = ThumbnailDescriber()
-    metadata = {"camera": args.camera, "image_root": str(traverse.root.resolve())}
+    metadata = {"camera": camera, "image_root": str(traverse.root.resolve())}
     summary = build_map(traverse, args.out, config, describer, metadata, overwrite=args.overwrite,
                         total=len(traverse), progress=not args.quiet, label=f"describing {traverse.root.name}")
     print(

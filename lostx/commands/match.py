@@ -1,4 +1,4 @@
-"""``lostx match MAP QUERY_DIR --out matches.csv``: match a folder of query images against a map."""
+"""``lostx match MAP SOURCE --out matches.csv``: match a traverse of queries (any format) against a map."""
 
 from __future__ import annotations
 
@@ -9,7 +9,16 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from lostx.options import add_config_options, add_viewer_options, close_viewer, config_from_args, viewer_sink_from_args
+from lostx.options import (
+    add_config_options,
+    add_source_options,
+    add_viewer_options,
+    close_viewer,
+    config_from_args,
+    print_notes,
+    source_options_from_args,
+    viewer_sink_from_args,
+)
 
 if TYPE_CHECKING:
     from lostx.core.estimate import Estimate
@@ -22,18 +31,23 @@ HEADING_COLUMNS = ["heading", "heading_confidence"]
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    parser = sub.add_parser("match", help="match a folder of query images against a reference map")
+    parser = sub.add_parser("match", help="match a traverse of queries (images, a bag, a video, ...) against a map")
     parser.add_argument("map", type=Path, help="reference map folder (from `lostx map build`)")
-    parser.add_argument("queries", type=Path, help="folder of query images, matched in name order")
+    parser.add_argument("queries", type=Path, help="the query traverse: a folder of images (name order), a RobotCar "
+                        "folder, a ROS 2 bag (.mcap), a video, a nuScenes scene (see docs/datasets.md)")
     parser.add_argument("--out", type=Path, required=True, help="CSV file to write, one row per query")
-    parser.add_argument("--opposite", action="store_true", help="the query camera faces opposite to the map's")
+    camera = parser.add_mutually_exclusive_group()
+    camera.add_argument("--camera", choices=["front", "rear"],
+                        help="declare the query camera's direction (default: as the source declares it)")
+    camera.add_argument("--opposite", action="store_true", help="the query camera faces opposite to the map's")
     parser.add_argument("--sequence", action="store_true",
-                        help="answer with the online sequence filter and tracker (frames in name order)")
+                        help="answer with the online sequence filter and tracker (frames in traverse order)")
     parser.add_argument("--mirror", action="store_true",
                         help="flip the query images left-right first (tests the flip handling; not an opposite view)")
     parser.add_argument("--descriptor", choices=["lost", "thumbnail"],
                         help="check that the map holds this descriptor (default: whatever it holds)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_source_options(parser, reverse=True)
     add_config_options(parser)
     add_viewer_options(parser)
     parser.set_defaults(run=run)
@@ -46,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
     from lostx.core.localizer import Localizer
     from lostx.core.outputs import check_output_file
     from lostx.core.refmap import ReferenceMap
-    from lostx.replay.folder import folder_traverse
+    from lostx.replay.dataset import open_traverse
 
     config = config_from_args(args)
     config = dataclasses.replace(config, sequence=dataclasses.replace(config.sequence, enabled=args.sequence))
@@ -59,8 +73,12 @@ def run(args: argparse.Namespace) -> int:
         # Without --backbone the matcher takes the map's own; a different one named explicitly is a mistake.
         raise MapError(f"{args.map} was built with backbone {built_with}, but --backbone asks for {args.backbone}; "
                        f"use --backbone {built_with} (or leave it out) or rebuild the map")
-    camera = {"front": "rear", "rear": "front"}[refmap.camera] if args.opposite else None
-    queries = folder_traverse(args.queries, camera=camera, mirror=args.mirror)  # type: ignore[arg-type]
+    camera = {"front": "rear", "rear": "front"}[refmap.camera] if args.opposite else args.camera
+    queries = open_traverse(args.queries, args.format, camera, mirror=args.mirror,
+                            options=source_options_from_args(args))
+    if args.reverse:
+        queries = queries.reversed()
+    print_notes(queries.notes)
     window = config.sequence.length
     if args.sequence and window > len(queries):
         print(f"note: the sequence window is {window} frames and {args.queries} has {len(queries)}: the window "
