@@ -127,7 +127,7 @@ class Stream:
         self.arrivals = Arrivals(results_ep)
         self.service = procs.start("serve", lostx_command(
             "serve", "--map", str(refmap.path), "--frames", self.frames_ep, "--results", results_ep,
-            "--mode", "lossless"))
+            "--mode", "lossless", "--no-journal"))
         self.publishers: dict[str, FramePublisher] = {}
         self.next_id = 0
 

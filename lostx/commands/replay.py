@@ -11,6 +11,10 @@ from lostx.options import add_client_key_options, client_keys_from_args
 from lostx.replay.dataset import open_traverse
 from lostx.replay.pace import Pace, check_realtime
 from lostx.stream.producer import FramePublisher
+from lostx.stream.protocol import MAX_NAME
+
+LAP_SUFFIX = 16
+"""Characters kept free in a stream id for the lap number of --loop (ID.1, ID.2, ...)."""
 from lostx.stream.replay import replay
 
 
@@ -28,6 +32,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     pace.add_argument("--as-fast-as-possible", action="store_true", help="no pacing (lossless services still "
                       "hold the replay back)")
     parser.add_argument("--loop", action="store_true", help="start over after the last frame, until Ctrl-C")
+    parser.add_argument("--stream", metavar="ID", help="the stream id the frames carry (default: 8 random hex "
+                        "digits); the service keeps one localizer state per stream, and a loop's laps are "
+                        "ID.1, ID.2, ...")
     camera = parser.add_mutually_exclusive_group()
     camera.add_argument("--camera", choices=["front", "rear"], help="declare the direction the camera faced (default: not declared)")
     camera.add_argument("--opposite", action="store_true", help="the frames come from a rear camera "
@@ -59,6 +66,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--jpeg-quality must be 1-100, got {args.jpeg_quality}")
     if args.jpeg_quality is not None and args.encoding not in (None, "jpeg"):
         raise InputError("--jpeg-quality goes with --encoding jpeg")
+    if args.stream is not None and not 1 <= len(args.stream) <= MAX_NAME - LAP_SUFFIX:
+        raise InputError(f"--stream must be 1 to {MAX_NAME - LAP_SUFFIX} characters, got {len(args.stream)}")
     encoding = args.encoding or ("jpeg" if args.jpeg_quality is not None else "raw")
     camera = "rear" if args.opposite else args.camera
     frames = open_source(args.source, args.format, args.positions, camera, args.mirror)
@@ -72,10 +81,11 @@ def run(args: argparse.Namespace) -> int:
     else:
         pace = Pace("realtime") if getattr(frames, "timestamps", None) is not None else Pace("rate", 10.0)
     keys = client_keys_from_args(args)
-    with FramePublisher(args.to, encoding=encoding, quality=args.jpeg_quality or 90, keys=keys,
+    with FramePublisher(args.to, encoding=encoding, quality=args.jpeg_quality or 90, keys=keys, stream=args.stream,
                         name=f"lostx replay {args.source.name}") as publisher:
         if not args.quiet:
-            print(f"replaying {len(frames)} frames from {args.source} to {args.to} ({pace.describe()}, "
+            print(f"replaying {len(frames)} frames from {args.source} to {args.to} as stream "
+                  f"{publisher.stream} ({pace.describe()}, "
                   f"{encoding}{', looping' if args.loop else ''}); waiting for the service...", file=sys.stderr)
         summary = replay(frames, publisher, pace, loop=args.loop, progress=not args.quiet, wait=args.wait)
     print(summary.line())
