@@ -189,7 +189,12 @@ class Listener:
             if self._numbering is not None:
                 return  # a change of numbering is taken from the next answer
             self._enter(numbering, stats.seq + 1)
-        if self._next is not None and stats.seq >= self._next:
+        assert self._next is not None
+        if stats.journal is not None and stats.journal.last < self._next - 1:
+            self.notices.append(f"answer {self._next - 1} is beyond the last in the service's journal "
+                                f"({stats.journal.last}): taking answers from {stats.journal.last + 1}")
+            self._next = stats.journal.last + 1
+        if stats.seq >= self._next:
             self._fill(stats.seq)
 
     def _enter(self, numbering: Numbering, first_seen: int) -> None:

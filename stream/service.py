@@ -309,8 +309,6 @@ class LocalizerService:
             self._read_frames()
         if events.get(self._results, 0) & zmq.POLLIN:
             self._read_subscriptions()
-        if self._history is not None and events.get(self._history, 0) & zmq.POLLIN:
-            self._serve_history()
         if self._waiting and self._listeners() >= self.min_listeners:
             for identity in self._waiting:
                 self._reply(identity, wire.encode_ready(self._ready()))
@@ -318,6 +316,8 @@ class LocalizerService:
         if dispatch:
             self._dispatch()
         self._commit()
+        if self._history is not None and events.get(self._history, 0) & zmq.POLLIN:
+            self._serve_history()  # after the commit: a listener never reads an answer that is not durable
         self._maybe_stats()
 
     def _sleep_ms(self) -> int:

@@ -379,3 +379,21 @@ def test_binding_a_network_address_needs_keys_or_insecure():
     check_bind_endpoint("tcp://0.0.0.0:5555", secure=False, insecure_ok=True)
     with pytest.raises(StreamError, match="refusing to bind tcp://0.0.0.0:5555"):
         check_bind_endpoint("tcp://0.0.0.0:5555", secure=False)
+
+
+def test_the_bytes_in_the_protocol_doc_are_what_lostx_reads():
+    """docs/protocol.md shows messages as JSON-like text and msgpack hex: each pair must agree."""
+    import re
+    from pathlib import Path
+
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "protocol.md").read_text()
+    blocks = re.findall(r"```\n(\{.*?\})\n((?:[0-9a-f]{2}[ \n])+)```", doc, re.S)
+    assert len(blocks) >= 4
+    for text, hex_bytes in blocks:
+        message = msgpack.unpackb(bytes.fromhex(hex_bytes.replace("\n", " ")))
+        assert message["v"] == wire.VERSION
+        for key in re.findall(r'"(\w+)":', text):
+            assert key in message, (key, text)
+        decoded = {"hello": wire.decode_request, "frame": wire.decode_request, "ack": wire.decode_reply,
+                   "fetch": wire.decode_fetch}[message["type"]](bytes.fromhex(hex_bytes.replace("\n", " ")), LIMITS)
+        assert decoded is not None
