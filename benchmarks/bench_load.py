@@ -15,6 +15,8 @@ and medians are reported.
 - latency: a frame handed to the producer's socket -> its answer received by the listener
   (in lossless mode this includes the wait behind the other streams' frames in the queue);
 - service p99: the service's own frame read -> answer handed to the socket, from its final stats;
+- service CPU: CPU time of the service process (all its threads) per frame, steadier than the wall
+  clock on a shared machine;
 - journal: the same with `--journal DIR` (every answer written and fsync'ed before its frame is
   acknowledged) against `--no-journal`, as ratios within the run.
 
@@ -37,7 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
-from common import RESULTS, print_table, write_json
+from common import RESULTS, cpu_seconds, print_table, write_json
 from lostx.core import Frame
 from lostx.core.build import build_map
 from lostx.core.paths import data_dir
@@ -56,12 +58,14 @@ class Run:
     fps: float
     latency_ms: list[float]
     service_p99_ms: float
+    service_cpu_ms: float
+    """CPU time of the service per frame."""
 
     def summary(self) -> dict:
         return {"streams": self.streams, "journal": self.journal, "fps": self.fps,
                 "latency_ms": {"p50": float(np.percentile(self.latency_ms, 50)),
                                "p99": float(np.percentile(self.latency_ms, 99)), "n": len(self.latency_ms)},
-                "service_p99_ms": self.service_p99_ms}
+                "service_p99_ms": self.service_p99_ms, "service_cpu_ms_per_frame": self.service_cpu_ms}
 
 
 class Arrivals(threading.Thread):
@@ -105,7 +109,7 @@ def one_run(procs: ProcessGroup, map_path: Path, frames: list[Frame], streams: i
     storage = ["--journal", str(tmp / f"{tag}-journal")] if journal else ["--no-journal"]
     name = f"serve-{tag}"
     arrivals = Arrivals(results_ep, len(frames) // streams * streams)
-    procs.start(name, lostx_command("serve", "--map", str(map_path), "--frames", frames_ep, "--results", results_ep,
+    service = procs.start(name, lostx_command("serve", "--map", str(map_path), "--frames", frames_ep, "--results", results_ep,
                                     "--mode", "lossless", "--max-streams", "64", *storage))
     length = len(frames) // streams  # each robot drives its own stretch of the route, frame ids from 0
     share = [[dataclasses.replace(f, id=i) for i, f in enumerate(frames[k * length:(k + 1) * length])]
@@ -117,11 +121,12 @@ def one_run(procs: ProcessGroup, map_path: Path, frames: list[Frame], streams: i
     for thread in threads:
         thread.start()
     barrier.wait()
-    start = time.perf_counter()
+    start, cpu = time.perf_counter(), cpu_seconds(service.pid)
     for thread in threads:
         thread.join()
     if not arrivals.all_in.wait(120):
         raise RuntimeError(f"{tag}: {len(arrivals.at)} of {arrivals.expected} answers arrived")
+    cpu = cpu_seconds(service.pid) - cpu
     last = max(arrivals.at.values())
     procs.stop(name, timeout=30)
     deadline = time.monotonic() + 10
@@ -130,8 +135,9 @@ def one_run(procs: ProcessGroup, map_path: Path, frames: list[Frame], streams: i
     arrivals.halt.set()
     arrivals.join(5)
     latency = [1e3 * (arrivals.at[key] - t) for key, t in sent.items()]
-    service = arrivals.final.latency_ms["service"]["p99"] if arrivals.final else float("nan")
-    return Run(streams, journal, arrivals.expected / (last - start), latency, service)
+    service_p99 = arrivals.final.latency_ms["service"]["p99"] if arrivals.final else float("nan")
+    return Run(streams, journal, arrivals.expected / (last - start), latency, service_p99,
+               1e3 * cpu / arrivals.expected)
 
 
 def main() -> int:
@@ -177,22 +183,26 @@ def main() -> int:
     def service(run: Run) -> float:
         return run.service_p99_ms
 
+    def cpu(run: Run) -> float:
+        return run.service_cpu_ms
+
     rows, table = [], []
     for n in counts:
         for journal in (False, True):
             rows.append([n, "on" if journal else "off", med(n, journal, fps), med(n, journal, p50),
-                         med(n, journal, p99), med(n, journal, service),
-                         med(n, journal, fps) / med(n, False, fps), med(n, journal, p99) / med(n, False, p99)])
+                         med(n, journal, p99), med(n, journal, service), med(n, journal, cpu),
+                         med(n, journal, fps) / med(n, False, fps), med(n, journal, p99) / med(n, False, p99),
+                         med(n, journal, cpu) / med(n, False, cpu)])
             table.append({"streams": n, "journal": journal, "fps": med(n, journal, fps),
                           "latency_p50_ms": med(n, journal, p50), "latency_p99_ms": med(n, journal, p99),
-                          "service_p99_ms": med(n, journal, service),
-                          "fps_vs_journal_off": rows[-1][6], "p99_vs_journal_off": rows[-1][7],
-                          "runs": [run.summary() for run in runs[(n, journal)]]})
+                          "service_p99_ms": med(n, journal, service), "service_cpu_ms_per_frame": med(n, journal, cpu),
+                          "fps_vs_journal_off": rows[-1][7], "p99_vs_journal_off": rows[-1][8],
+                          "cpu_vs_journal_off": rows[-1][9], "runs": [run.summary() for run in runs[(n, journal)]]})
     print_table(f"One lossless service, Nordland winter frames against a thumbnail map of summer; {args.frames} "
                 f"frames per run, median of {args.rounds} interleaved rounds; {os.cpu_count()} cores, load average "
                 f"{load_start:.1f}",
                 ["streams", "journal", "frames/s", "latency p50 ms", "latency p99 ms", "service p99 ms",
-                 "fps / journal off", "p99 / journal off"], rows)
+                 "service CPU ms/frame", "fps / off", "p99 / off", "CPU / off"], rows)
     one = med(counts[0], False, fps)
     for n in counts[1:]:
         print(f"{n} streams: {med(n, False, fps) / one:.2f} x the frames per second of {counts[0]} (journal off), "

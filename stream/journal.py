@@ -14,6 +14,9 @@ Sequence numbers are consecutive across segments. Records are only ever
 appended; a new segment starts when the current one reaches its size, and the
 oldest segments are deleted to keep the journal within its bound.
 
+One thread appends and commits while another reads (a lock keeps the segment
+index whole); readers see only what is committed, that is, durable.
+
 A record is written with one ``write`` call, so a killed service leaves whole
 records behind; a crash of the machine can leave a torn record at the end,
 which the next open finds by its CRC and cuts off. Damage anywhere else is
@@ -27,6 +30,7 @@ import json
 import os
 import secrets
 import struct
+import threading
 import zlib
 from array import array
 from bisect import bisect_right
@@ -75,15 +79,19 @@ class Journal:
         self._segments: list[_Segment] = []
         self._fd: int | None = None  # the last segment, open for appending
         self._dirty = False
+        self._index_lock = threading.Lock()  # the segment index, between the writing and the reading thread
+        self.committed = 0
+        """The newest answer made durable by :meth:`commit` (all those found on opening count)."""
         self._lock_fd: int | None = None
         try:
             self.folder.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
             raise JournalError(f"cannot create the journal folder {self.folder}: {exc.strerror}") from None
-        self._lock()
+        self._lock_folder()
         try:
             self.id = self._identity()
             self._recover()
+            self.committed = self.last
         except BaseException:
             self.close()
             raise
@@ -93,12 +101,17 @@ class Journal:
     @property
     def first(self) -> int:
         """Sequence number of the oldest answer held (0 when empty)."""
-        held = [s for s in self._segments if s.count]
-        return held[0].first if held else 0
+        with self._index_lock:
+            held = [s for s in self._segments if s.count]
+            return held[0].first if held else 0
 
     @property
     def last(self) -> int:
-        """Sequence number of the newest answer held (0 when empty)."""
+        """Sequence number of the newest answer appended (0 when empty)."""
+        with self._index_lock:
+            return self._last()
+
+    def _last(self) -> int:
         for segment in reversed(self._segments):
             if segment.count:
                 return segment.first + segment.count - 1
@@ -106,6 +119,10 @@ class Journal:
 
     @property
     def nbytes(self) -> int:
+        with self._index_lock:
+            return self._nbytes()
+
+    def _nbytes(self) -> int:
         return sum(s.size for s in self._segments)
 
     @property
@@ -126,18 +143,24 @@ class Journal:
         segment = self._segments[-1]
         record = HEADER.pack(len(payload), _crc(seq, payload), seq) + payload
         _write_all(self._fd, record)
-        segment.offsets.append(segment.size)
-        segment.size += len(record)
+        with self._index_lock:
+            segment.offsets.append(segment.size)
+            segment.size += len(record)
         self._dirty = True
 
     def commit(self) -> None:
-        """Make everything appended so far durable (fsync, where configured). Cheap when nothing is new."""
+        """Make everything appended so far durable (fsync, where configured), and readable."""
         if self._dirty and self._fd is not None and self.fsync:
             os.fdatasync(self._fd)
         self._dirty = False
+        self.committed = self.last
 
     def _start_segment(self, seq: int) -> None:
         self.commit()
+        with self._index_lock:
+            self._rotate(seq)
+
+    def _rotate(self, seq: int) -> None:
         if self._fd is not None:
             os.close(self._fd)
             self._fd = None
@@ -148,23 +171,28 @@ class Journal:
         self._sync_folder()  # the new file itself must survive a crash of the machine
         self._segments.append(_Segment(seq, path))
         # Room for the new segment to fill up: the journal stays within max_bytes (give or take a record).
-        while len(self._segments) > 1 and self.nbytes + self.segment_bytes > self.max_bytes:
+        while len(self._segments) > 1 and self._nbytes() + self.segment_bytes > self.max_bytes:
             self._segments.pop(0).path.unlink(missing_ok=True)
 
     # -- reading ---------------------------------------------------------------------------------
 
     def read(self, after: int, max_items: int, max_bytes: int) -> list[bytes]:
-        """Payloads of the answers after ``after``, oldest first: at most ``max_items``, and no more
-        than ``max_bytes`` in all (but always one, where there is one)."""
-        seq = max(after + 1, self.first)
+        """Payloads of the committed answers after ``after``, oldest first: at most ``max_items``, and
+        no more than ``max_bytes`` in all (but always one, where there is one)."""
+        with self._index_lock:
+            return self._read(after, max_items, max_bytes)
+
+    def _read(self, after: int, max_items: int, max_bytes: int) -> list[bytes]:
+        held = [s for s in self._segments if s.count]
+        seq = max(after + 1, held[0].first if held else 0)
         out: list[bytes] = []
         total = 0
-        while seq and seq <= self.last and len(out) < max_items:
+        while seq and seq <= self.committed and len(out) < max_items:
             index = bisect_right([s.first for s in self._segments], seq) - 1
             segment = self._segments[index]
             i = seq - segment.first
             with open(segment.path, "rb") as handle:
-                while i < segment.count and len(out) < max_items:
+                while i < segment.count and seq <= self.committed and len(out) < max_items:
                     handle.seek(segment.offsets[i])
                     length, crc, stored = HEADER.unpack(handle.read(HEADER.size))
                     payload = handle.read(length)
@@ -179,8 +207,8 @@ class Journal:
         return out
 
     def tail(self, n: int) -> list[bytes]:
-        """Payloads of the newest ``n`` answers, oldest first."""
-        return self.read(max(0, self.last - n), n, 1 << 62)
+        """Payloads of the newest ``n`` committed answers, oldest first."""
+        return self.read(max(0, self.committed - n), n, 1 << 62)
 
     # -- lifecycle -------------------------------------------------------------------------------
 
@@ -201,7 +229,7 @@ class Journal:
 
     # -- opening ---------------------------------------------------------------------------------
 
-    def _lock(self) -> None:
+    def _lock_folder(self) -> None:
         path = self.folder / "lock"
         self._lock_fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
         try:

@@ -18,10 +18,11 @@ through the credit, the producers.
 
 Every answer (a result, or the error that answers a frame) gets the next
 sequence number. With a journal, an answer is written there and made durable
-before its frame is acknowledged and before it is published, so a listener
-that missed answers (it was stopped, killed, or restarted, or the service was)
-fetches them from the history socket; the numbers go on across restarts of
-the service.
+(by the :class:`~lostx.stream.journal_writer.JournalWriter` thread, in
+batches) before its frame is acknowledged and before it is published, so a
+listener that missed answers (it was stopped, killed, or restarted, or the
+service was) fetches them from the history socket; the numbers go on across
+restarts of the service.
 
 :meth:`LocalizerService.stop` (from a signal handler or another thread) lets
 the worker finish the frame in hand, publishes its answer and the final stats,
@@ -48,6 +49,7 @@ from lostx.core.localizer import Localizer
 from . import protocol as wire
 from .errors import ProtocolError, StreamError
 from .journal import Journal, JournalError
+from .journal_writer import JournalWriter
 from .protocol import Ack, ErrorMessage, FrameMessage, Hello, History, JournalInfo, Limits, Ready, Stats, Tag
 from .sinks import Sink, close_sink
 from .sockets import (
@@ -154,12 +156,16 @@ class LocalizerService:
         self._results: zmq.Socket | None = None
         self._history: zmq.Socket | None = None
         self._wake: zmq.Socket | None = None
+        self._journal_wake: zmq.Socket | None = None
         self._worker: Worker | None = None
+        self._writer: JournalWriter | None = None
         self._busy: Job | None = None  # the job the worker has in hand
         self._slots: dict[str, Job] = {}  # live: each stream's newest frame not yet started, in turn order
         self._queue: deque[Job] = deque()  # lossless: frames in order
         self._outgoing: deque[_Outgoing] = deque()
-        self._replies: list[tuple[bytes, bytes, tuple[str, int] | None]] = []  # journaled, sent at commit
+        # Journaled answers' replies, sent once the answer is durable: (seq, producer, reply, frame key).
+        self._acks: deque[tuple[int, bytes, bytes, tuple[str, int] | None]] = deque()
+        self._durable = 0  # with a journal: the newest answer made durable
         self._subscriptions: Counter[bytes] = Counter()
         self._producers: dict[bytes, float] = {}
         self._waiting: set[bytes] = set()  # producers owed a ready
@@ -224,6 +230,11 @@ class LocalizerService:
             self._wake = self._context.socket(zmq.PAIR)
             self._wake.bind(wake_endpoint)
             self._worker = Worker(self.sinks, self._context, wake_endpoint, self.log)
+            if self.journal is not None:
+                journal_endpoint = f"inproc://lostx-journal-{self.session}"
+                self._journal_wake = self._context.socket(zmq.PAIR)
+                self._journal_wake.bind(journal_endpoint)
+                self._writer = JournalWriter(self.journal, self._context, journal_endpoint)
         except BaseException:
             self.close()
             raise
@@ -235,6 +246,7 @@ class LocalizerService:
         self.journal = Journal(cfg.journal, segment_bytes=cfg.journal_segment_bytes,
                                max_bytes=cfg.journal_max_bytes, fsync=cfg.journal_fsync)
         self._next_seq = self.journal.last + 1
+        self._durable = self.journal.committed
         # Frames the previous service answered but whose acks it never sent come again: know them.
         for payload in self.journal.tail(JOURNAL_TAIL):
             key = _journaled_key(payload)
@@ -252,10 +264,13 @@ class LocalizerService:
         if worker is not None and worker.is_alive():
             worker.jobs.put(None)
             worker.join(10)
-        for socket in (self._results, self._frames, self._history, self._wake):
+        writer, self._writer = self._writer, None
+        if writer is not None:
+            writer.close()
+        for socket in (self._results, self._frames, self._history, self._wake, self._journal_wake):
             if socket is not None:
                 socket.close(linger=linger_ms)
-        self._frames = self._results = self._history = self._wake = None
+        self._frames = self._results = self._history = self._wake = self._journal_wake = None
         if self._auth is not None:
             self._auth.stop()
             self._auth = None
@@ -280,6 +295,8 @@ class LocalizerService:
         self.log(f"{cfg.mode} mode, session {self.session}; frames {self.endpoints[0]} (ROUTER), "
                  f"results {self.endpoints[1]} (XPUB){journal}" + ("; CurveZMQ on" if self.keys else ""))
         self._worker.start()
+        if self._writer is not None:
+            self._writer.start()
         try:
             while not self._stop.is_set():
                 self._turn()
@@ -302,7 +319,11 @@ class LocalizerService:
         poller.register(self._wake, zmq.POLLIN)
         if self._history is not None:
             poller.register(self._history, zmq.POLLIN)
+        if self._journal_wake is not None:
+            poller.register(self._journal_wake, zmq.POLLIN)
         events = dict(poller.poll(self._sleep_ms()))
+        if self._journal_wake is not None and events.get(self._journal_wake):
+            self._collect_durable()
         if events.get(self._wake):
             self._collect_answers()
         if read_frames and events.get(self._frames, 0) & zmq.POLLIN:
@@ -315,9 +336,9 @@ class LocalizerService:
             self._waiting.clear()
         if dispatch:
             self._dispatch()
-        self._commit()
+        self._release()
         if self._history is not None and events.get(self._history, 0) & zmq.POLLIN:
-            self._serve_history()  # after the commit: a listener never reads an answer that is not durable
+            self._serve_history()
         self._maybe_stats()
 
     def _sleep_ms(self) -> int:
@@ -333,8 +354,8 @@ class LocalizerService:
         assert self._worker is not None
         if self._busy is not None or self._listeners() < self.min_listeners:
             return
-        if self.lossless and len(self._outgoing) >= self.config.pending_results:
-            return  # a listener is slow: wait for it rather than drop answers
+        if len(self._outgoing) >= self.config.pending_results:
+            return  # a listener (lossless) or the disk (with a journal) is slow: wait for it, drop nothing
         while True:
             job = self._next_job()
             if job is None:
@@ -427,29 +448,41 @@ class LocalizerService:
             payload = reply = wire.encode_error(ErrorMessage(answer.code, answer.text, job.message.id, self.session,
                                                              tag))
         key = _key(job.message) if self.lossless else None
-        if self.journal is not None:
-            # Journaled: acknowledged as soon as it is durable (at commit), whether or not a listener has it.
-            try:
-                self.journal.append(seq, payload)
-            except OSError as exc:
-                raise JournalError(f"cannot write the journal {self.config.journal}: {exc.strerror}") from None
+        if self._writer is not None:
+            # Journaled: acknowledged as soon as it is durable, whether or not a listener has it.
+            self._writer.write(seq, payload)
             if reply is not None:
-                self._replies.append((job.identity, reply, key))
+                self._acks.append((seq, job.identity, reply, key))
             reply, key = None, None
         self._outgoing.append(_Outgoing(topic, payload, job.identity, reply, job.received, seq, key))
 
-    def _commit(self) -> None:
-        """Make the journaled answers durable, acknowledge their frames, then publish."""
-        if self.journal is not None:
+    def _collect_durable(self) -> None:
+        assert self._journal_wake is not None and self._writer is not None
+        while True:
             try:
-                self.journal.commit()
-            except OSError as exc:
-                raise JournalError(f"cannot write the journal {self.config.journal}: {exc.strerror}") from None
-        for identity, reply, key in self._replies:
+                self._journal_wake.recv(zmq.NOBLOCK)
+            except zmq.Again:
+                break
+        self._take_durable()
+
+    def _take_durable(self) -> None:
+        assert self._writer is not None
+        if self._writer.error is not None:
+            error = self._writer.error
+            text = error.strerror if isinstance(error, OSError) else str(error)
+            raise JournalError(f"cannot write the journal {self.config.journal}: {text}")
+        self._durable = self._writer.durable
+
+    def _is_durable(self, seq: int) -> bool:
+        return self._writer is None or seq <= self._durable
+
+    def _release(self) -> None:
+        """Acknowledge the frames whose answers are durable, then publish what may go out."""
+        while self._acks and self._is_durable(self._acks[0][0]):
+            _, identity, reply, key = self._acks.popleft()
             self._reply(identity, reply)
             if key is not None:
                 self._unacked.discard(key)
-        self._replies.clear()
         self._flush()
 
     def _read_frames(self) -> None:
@@ -523,7 +556,7 @@ class LocalizerService:
         return sum(n for topic, n in self._subscriptions.items() if b"result".startswith(topic))
 
     def _serve_history(self) -> None:
-        """Answer listeners' fetch requests from the journal (only what is durable is there to read)."""
+        """Answer listeners' fetch requests from the journal (it serves only what is durable)."""
         assert self._history is not None and self.journal is not None
         for _ in range(100):
             try:
@@ -582,7 +615,7 @@ class LocalizerService:
     def _flush(self) -> None:
         """Hand queued answers to the results socket until it pushes back (lossless) or all are out."""
         assert self._results is not None
-        while self._outgoing:
+        while self._outgoing and self._is_durable(self._outgoing[0].seq):
             item = self._outgoing[0]
             try:
                 self._results.send_multipart([item.topic, item.payload], zmq.NOBLOCK)
@@ -611,7 +644,7 @@ class LocalizerService:
         journal = None
         if self.journal is not None:
             j = self.journal
-            journal = JournalInfo(j.id, j.first, j.last, j.nbytes, j.segments)
+            journal = JournalInfo(j.id, j.first, j.committed, j.nbytes, j.segments)
         return Stats(
             session=self.session, mode=self.config.mode, uptime_s=c.uptime, received=c.received,
             answered=c.answered, dropped=c.dropped, missing=c.missing, duplicates=c.duplicates,
@@ -639,10 +672,13 @@ class LocalizerService:
         deadline = time.monotonic() + self.config.linger
         final = self.stats(final=True)
         if self._results is not None:
-            try:
-                self._commit()
-            except JournalError as exc:
-                self.log(str(exc))
+            if self._writer is not None:
+                self._writer.close()  # everything answered is written and flushed
+                try:
+                    self._take_durable()
+                except JournalError as exc:
+                    self.log(str(exc))
+            self._release()
             while self._outgoing and time.monotonic() < deadline:
                 self._flush()
                 if self._outgoing:

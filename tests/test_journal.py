@@ -41,6 +41,16 @@ def test_answers_read_back_in_order_from_any_point_after_reopening(tmp_path):
         assert journal.last == 52 and journal.read(50, 10, 1 << 20) == [payload(51), payload(52)]
 
 
+def test_readers_see_only_committed_answers(tmp_path):
+    with Journal(tmp_path / "j") as journal:
+        fill(journal, 1, 3)
+        journal.append(4, payload(4))
+        assert (journal.last, journal.committed) == (4, 3)
+        assert journal.read(0, 10, 1 << 20) == [payload(1), payload(2), payload(3)]
+        journal.commit()
+        assert journal.read(2, 10, 1 << 20) == [payload(3), payload(4)]
+
+
 def test_segments_rotate_and_the_oldest_go_to_keep_the_bound(tmp_path):
     record = HEADER.size + len(payload(6))  # the longest payload
     with Journal(tmp_path / "j", segment_bytes=20 * record, max_bytes=70 * record) as journal:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import json
 import os
 import re
 import signal
@@ -624,8 +625,9 @@ def test_streams_are_bounded_and_idle_ones_expire(thumb_map, nordland, tmp_path)
             assert "stream 'c' would be one more than the 2 live streams (max_streams)" in refused[0].text
             time.sleep(1.2)  # a and b expire
             assert send("c", winter[1]) == [] and send("a", winter[2]) == []
-            wait_for(lambda: len(listener.results) == 4, 10, "four results")
-            stats = service.stats()
+            wait_for(lambda: len(listener.results) == 4 and listener.stats and listener.stats[-1].seq == 4, 10,
+                     "four results and the stats after them")
+            stats = listener.stats[-1]
         finally:
             for publisher in publishers.values():
                 publisher.close()
@@ -652,10 +654,15 @@ def test_a_live_listener_that_falls_behind_counts_what_it_missed(thumb_map, nord
             with FramePublisher(frames) as publisher:
                 replay(list(folder_traverse(nordland / "winter"))[:800], publisher, Pace("rate", 400.0),
                        progress=False, wait=30)
-            wait_for(lambda: service.stats().queued_frames == 0 and service._busy is None, 30, "the service idle")
-            last = service.stats().seq
-            # The slow listener catches up with the numbering at the stats after its queue drains.
-            wait_for(lambda: slow.listener.last_seq == last, 60, "the slow listener to hear the last answer's number")
+            # Every frame taken is answered or dropped, and the slow listener has heard the last answer's
+            # number: from an answer, or from the stats once its queue drained.
+            def caught_up() -> bool:
+                stats = slow.stats[-1] if slow.stats else None
+                return (stats is not None and stats.received == stats.answered + stats.dropped
+                        and slow.listener.last_seq == stats.seq)
+
+            wait_for(caught_up, 60, "the slow listener to hear of the last answer")
+            last = slow.stats[-1].seq
         finally:
             service.stop("test over")
             thread.join(30)
@@ -721,6 +728,7 @@ def test_bad_stream_settings_are_one_line_errors(thumb_map, tmp_path, capsys):
         (["serve", "--map", m, "--max-streams", "0"], "stream setting max_streams must be at least 1, got 0"),
         (["serve", "--map", m, "--max-streams", "300"], "stream setting max_streams must be at most 256, got 300"),
         (["serve", "--map", m, "--stream-expiry", "0"], "stream setting stream_expiry must be positive, got 0.0"),
+        (["serve", "--map", m, "--history", "tcp://127.0.0.1:7"], "--history serves the journal: give --journal DIR"),
         (["serve", "--map", m, "--mode", "lossless", "--journal", str(tmp_path / "taken"),
           "--frames", f"ipc://{tmp_path}/f", "--results", f"ipc://{tmp_path}/r"],
          f"journal {tmp_path / 'taken'} is in use by another service (pid {os.getpid()})"),
@@ -736,6 +744,19 @@ def test_bad_stream_settings_are_one_line_errors(thumb_map, tmp_path, capsys):
             assert err.startswith("lostx: error: ") and message in err and err.count("\n") == 1, (argv, err)
     finally:
         taken.close()
+
+
+def test_resuming_reads_the_last_answer_of_the_file_and_drops_a_line_cut_short(tmp_path):
+    from lostx.commands.listen import resume_point
+
+    path = tmp_path / "answers.jsonl"
+    assert resume_point(path) == (0, None)
+    lines = [{"type": "result", "seq": 7, "journal": "j1"}, {"type": "error", "seq": 8, "journal": "j1"},
+             {"type": "stats", "seq": 9}]
+    whole = "".join(json.dumps(line) + "\n" for line in lines)
+    path.write_text(whole + '{"type": "result", "seq": 9, "jour')  # killed in the middle of a line
+    assert resume_point(path) == (8, "j1")
+    assert path.read_text() == whole  # the next run appends after the last whole line
 
 
 def test_time_checks_refuse_one_frame_or_start_a_new_traverse():

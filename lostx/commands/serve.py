@@ -56,6 +56,8 @@ def run(args: argparse.Namespace) -> int:
         config = stream_config_from_args(args, config_from_args(args))
         if args.no_sequence:
             config = dataclasses.replace(config, sequence=dataclasses.replace(config.sequence, enabled=False))
+        if args.history and config.stream.journal is None:
+            raise InputError("--history serves the journal: give --journal DIR too")
         if config.stream.mode == "lossless" and config.stream.journal is None and not args.no_journal:
             raise InputError("lossless mode needs a result journal: give --journal DIR (or --no-journal, and answers "
                              "a listener had not read when it died are lost)")
