@@ -358,6 +358,12 @@ def test_fuzz_the_service_answers_every_bad_message_and_stays_up(day_map, robotc
     assert final.errors_by_code == by_code
     # Listeners heard of every refusal too (frame ids included), in the order they happened.
     assert [(e.code, e.frame_id) for e in listener.errors] == [(r.code, r.frame_id) for r in replies]
+    # The text does not repeat the frame id its own field carries ("frame 7: frame 7: ...").
+    assert any(r.code == "localizer_failed" for r in replies)
+    assert not [r.text for r in replies if r.text.startswith(f"frame {r.frame_id}:")]
+    # Hundreds of broken images, and not a line about them in the service's log.
+    log = procs.log("serve")
+    assert "libpng" not in log and "JPEG" not in log and len(log.splitlines()) <= 4, log[-2000:]
 
 
 def test_a_message_over_twice_the_limit_is_cut_off_by_the_transport(thumb_map, procs, tmp_path):
