@@ -37,7 +37,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                      help="hand every answer to a sink: jsonl=FILE, or package.module:factory[=ARG] (repeatable)")
     sec = parser.add_argument_group("security")
     sec.add_argument("--curve-secret", type=Path, metavar="FILE",
-                     help="the service's secret key (.key_secret from `lostx keys`): CurveZMQ on both sockets")
+                     help="the service's secret key (.key_secret from `lostx keys`): CurveZMQ on all its sockets")
     sec.add_argument("--curve-clients", type=Path, metavar="DIR",
                      help="folder of the public keys (.key) of the producers and listeners allowed in")
     sec.add_argument("--insecure", action="store_true",
