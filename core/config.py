@@ -169,6 +169,26 @@ class StreamConfig:
     """Seconds between stats (heartbeat) messages."""
     linger: float = 2.0
     """Seconds the service spends flushing results on exit."""
+    history: str = ""
+    """Where the service binds the history socket (ROUTER) from which listeners fetch journaled
+    answers; empty: the results endpoint with its port plus one (tcp) or ``-history`` appended."""
+    journal: Path | None = None
+    """Folder of the result journal: every answer is written there before its frame is acknowledged,
+    and listeners resume from it. ``None``: no journal."""
+    journal_segment_bytes: int = 16 * 1024 * 1024
+    """The journal starts a new segment file when the current one reaches this size."""
+    journal_max_bytes: int = 256 * 1024 * 1024
+    """The journal deletes its oldest segments to stay within this size."""
+    journal_fsync: bool = True
+    """Flush each batch of answers to the disk (fsync) before acknowledging the frames; ``False``
+    survives a crash of the service but not of the machine."""
+    max_streams: int = 64
+    """Streams with a state (a localizer each) at one time; a frame of one more is refused."""
+    stream_expiry: float = 300.0
+    """Seconds without a frame after which a stream's state is forgotten (its next frame starts afresh)."""
+    max_time_jump: float = 3600.0
+    """Seconds a frame's timestamp may jump ahead of its stream's previous one; further ahead is refused.
+    A jump back by more than this starts a new traverse (a restarted clock); less is refused."""
 
 
 @dataclass(frozen=True)
@@ -232,6 +252,8 @@ LIMITS: dict[str, dict[str, Bounds]] = {
         "window": _AT_LEAST_1, "queue": _AT_LEAST_1, "wait_listeners": _AT_LEAST_0, "max_message_bytes": _AT_LEAST_1,
         "max_pixels": _AT_LEAST_1, "frame_hwm": _AT_LEAST_0, "result_hwm": _AT_LEAST_0,
         "pending_results": _AT_LEAST_1, "stats_interval": _ABOVE_0, "linger": _AT_LEAST_0,
+        "journal_segment_bytes": _AT_LEAST_1, "journal_max_bytes": _AT_LEAST_1, "max_streams": Bounds(1, 256),
+        "stream_expiry": _ABOVE_0, "max_time_jump": _ABOVE_0,
     },
 }
 """Valid values of every numeric setting, by section and key (docs/config.md lists them)."""

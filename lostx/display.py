@@ -32,4 +32,4 @@ def drop_line(stats: Stats) -> str | None:
     step = stats.latency_ms.get("step", {}).get("p50")
     pace = f" ({step:.0f} ms per frame, about {1e3 / step:.1f} frames/s)" if step else ""
     return (f"{stats.dropped} of {stats.received} frames dropped: the localizer{pace} is slower than the frames "
-            f"arrived; replay at a lower --rate, or serve with --mode lossless to answer every frame")
+            f"arrived; replay at a lower --rate, or serve with --mode lossless --journal DIR to answer every frame")

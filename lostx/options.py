@@ -146,6 +146,20 @@ def add_stream_options(parser: argparse.ArgumentParser) -> None:
                        help="hold producers back until N listeners subscribe (lossless: at least 1)")
     group.add_argument("--max-message-bytes", type=int, metavar="BYTES", help="largest frame message (default 16 MiB)")
     group.add_argument("--stats-interval", type=float, metavar="S", help="seconds between stats messages (default 1)")
+    group.add_argument("--max-streams", type=int, metavar="N",
+                       help="streams (a localizer state each) at one time; one more is refused (default 64)")
+    group.add_argument("--stream-expiry", type=float, metavar="S",
+                       help="forget a stream after S seconds without a frame (default 300)")
+    journal = parser.add_argument_group("journal (lossless mode needs one, or --no-journal)")
+    choice = journal.add_mutually_exclusive_group()
+    choice.add_argument("--journal", type=Path, metavar="DIR",
+                        help="write every answer to the journal in DIR before acknowledging its frame; "
+                             "listeners resume from it (lostx listen --resume)")
+    choice.add_argument("--no-journal", action="store_true",
+                        help="lossless without a journal: answers a listener had not read when it died are lost")
+    journal.add_argument("--history", metavar="ENDPOINT",
+                         help="bind the history socket (journaled answers for listeners) here "
+                              "(default: the results port plus one)")
 
 
 def add_client_key_options(parser: argparse.ArgumentParser) -> None:
@@ -171,10 +185,13 @@ def stream_config_from_args(args: argparse.Namespace, config: Config) -> Config:
     """``config`` with the stream settings given on the command line applied."""
     changes = {
         name: getattr(args, name, None)
-        for name in ("frames", "results", "mode", "wait_listeners", "max_message_bytes", "stats_interval")
+        for name in ("frames", "results", "mode", "wait_listeners", "max_message_bytes", "stats_interval",
+                     "max_streams", "stream_expiry", "journal", "history")
     }
     changes["window"] = getattr(args, "credit", None)
     stream = dataclasses.replace(config.stream, **{k: v for k, v in changes.items() if v is not None})
+    if getattr(args, "no_journal", False):
+        stream = dataclasses.replace(stream, journal=None)
     return dataclasses.replace(config, stream=stream)
 
 

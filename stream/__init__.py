@@ -13,11 +13,13 @@ from lostx.core.lazy import lazy_exports
 _EXPORTS = {
     **dict.fromkeys(("Listener", "results"), ".client"),
     **dict.fromkeys(("ProtocolError", "StreamError"), ".errors"),
+    **dict.fromkeys(("Journal", "JournalError"), ".journal"),
     "FramePublisher": ".producer",
-    **dict.fromkeys(("ErrorMessage", "Limits", "Result", "ResultCandidate", "Stats"), ".protocol"),
+    **dict.fromkeys(("ErrorMessage", "Limits", "Result", "ResultCandidate", "Stats", "Tag"), ".protocol"),
     "LocalizerService": ".service",
     **dict.fromkeys(("JsonlSink", "Sink"), ".sinks"),
     **dict.fromkeys(("ClientKeys", "ServerKeys", "make_keys"), ".sockets"),
+    "localizer_factory": ".streams",
 }
 __all__ = sorted(_EXPORTS)
 __getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

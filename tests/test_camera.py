@@ -110,7 +110,7 @@ def test_a_camera_faster_than_the_localizer_is_answered_newest_first(day_map, ro
     frames, results = endpoints("ipc", tmp_path)
     listener = Collector(results, topics=("result",))  # a lossless service answers once someone listens
     procs.start("serve", lostx_command("serve", "--map", str(day_map.path), "--frames", frames, "--results",
-                                       results, "--mode", "lossless"))
+                                       results, "--mode", "lossless", "--no-journal"))
     images = [read_image(f) for f in list_images(robotcar / "night")]
     capture = FastCapture(images, rate=200.0, count=300)
     ages: list[int] = []

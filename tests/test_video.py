@@ -95,7 +95,7 @@ def test_a_video_replays_into_the_service_and_is_answered(night_video, day_map, 
     client = Collector(results, topics=("result",))
     try:
         procs.start("serve", lostx_command("serve", "--map", str(day_map.path), "--frames", frames, "--results",
-                                           results, "--mode", "lossless", "--wait-listeners", "1"))
+                                           results, "--mode", "lossless", "--no-journal", "--wait-listeners", "1"))
         procs.start("replay", lostx_command("replay", str(night_video), "--to", frames, "--quiet", "--wait", "60",
                                             "--as-fast-as-possible"))
         assert procs.processes["replay"].wait(120) == 0

@@ -107,7 +107,8 @@ def _stream(args: argparse.Namespace, refmap: ReferenceMap, night, tmp: Path) ->
     """Service, listener (this process) and replay: the answers by frame id, and the service's final stats.
 
     The service runs lossless: on a loaded machine a slower localizer holds the replay back instead of
-    dropping frames, so every night frame is answered."""
+    dropping frames, so every night frame is answered. It keeps no journal (``--no-journal``): its one
+    listener is this process, subscribed before the first frame and there until the last answer."""
     from lostx.stream.client import Listener
     from lostx.stream.errors import StreamError
     from lostx.stream.processes import ProcessGroup, lostx_command
@@ -120,7 +121,8 @@ def _stream(args: argparse.Namespace, refmap: ReferenceMap, night, tmp: Path) ->
     with ProcessGroup(log_dir=tmp) as procs, Listener(results) as listener:
         # The service waits for this listener before it takes frames, so no answer is missed.
         procs.start("serve", lostx_command("serve", "--map", str(refmap.path), "--frames", frames,
-                                           "--results", results, "--mode", "lossless", "--wait-listeners", "1",
+                                           "--results", results, "--mode", "lossless", "--no-journal",
+                                           "--wait-listeners", "1",
                                            "--window", str(args.window), *_backbone_args(args),
                                            *viewer_args(args)))
         procs.start("replay", lostx_command("replay", str(night.root), "--to", frames, "--rate", str(args.rate),

@@ -20,6 +20,9 @@ if TYPE_CHECKING:
     from lostx.stream.producer import FramePublisher
     from lostx.stream.replay import ReplaySummary
 
+LAP_SUFFIX = 16
+"""Characters kept free in a stream id for the lap number of --loop (ID.1, ID.2, ...)."""
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     parser = sub.add_parser("replay", help="replay a traverse (or stream a camera) into the service")
@@ -36,6 +39,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     pace.add_argument("--as-fast-as-possible", action="store_true", help="no pacing (lossless services still "
                       "hold the replay back)")
     parser.add_argument("--loop", action="store_true", help="start over after the last frame, until Ctrl-C")
+    parser.add_argument("--stream", metavar="ID", help="the stream id the frames carry (default: 8 random hex "
+                        "digits); the service keeps one localizer state per stream, and a loop's laps are "
+                        "ID.1, ID.2, ...")
     camera = parser.add_mutually_exclusive_group()
     camera.add_argument("--camera", choices=["front", "rear"], help="declare the direction the camera faced (default: not declared)")
     camera.add_argument("--opposite", action="store_true", help="the frames come from a rear camera "
@@ -62,12 +68,15 @@ def run(args: argparse.Namespace) -> int:
     from lostx.replay.camera import camera_index
     from lostx.replay.dataset import open_traverse
     from lostx.replay.pace import Pace, check_realtime
+    from lostx.stream.protocol import MAX_NAME
     from lostx.stream.replay import replay
 
     if args.jpeg_quality is not None and not 1 <= args.jpeg_quality <= 100:
         raise InputError(f"--jpeg-quality must be 1-100, got {args.jpeg_quality}")
     if args.jpeg_quality is not None and args.encoding not in (None, "jpeg"):
         raise InputError("--jpeg-quality goes with --encoding jpeg")
+    if args.stream is not None and not 1 <= len(args.stream) <= MAX_NAME - LAP_SUFFIX:
+        raise InputError(f"--stream must be 1 to {MAX_NAME - LAP_SUFFIX} characters, got {len(args.stream)}")
     encoding = args.encoding or ("jpeg" if args.jpeg_quality is not None else "raw")
     camera = "rear" if args.opposite else args.camera
     index = camera_index(args.source)
@@ -90,7 +99,8 @@ def run(args: argparse.Namespace) -> int:
         pace = Pace("realtime") if frames.timestamps is not None else Pace("rate", 10.0)
     with _publisher(args, encoding, source.name) as publisher:
         if not args.quiet:
-            print(f"replaying {len(frames)} frames from {source} to {args.to} ({pace.describe()}, "
+            print(f"replaying {len(frames)} frames from {source} to {args.to} as stream {publisher.stream} "
+                  f"({pace.describe()}, "
                   f"{encoding}{', looping' if args.loop else ''}); waiting for the service...", file=sys.stderr)
         summary = replay(frames, publisher, pace, loop=args.loop, progress=not args.quiet, wait=args.wait)
     return _finish(summary)
@@ -113,8 +123,8 @@ def _run_camera(args: argparse.Namespace, index: int, camera: str | None, encodi
                          f"{'is' if len(misplaced) == 1 else 'are'} for recordings only")
     with LiveCamera(index, camera) as live, _publisher(args, encoding, live.name) as publisher:  # type: ignore[arg-type]
         if not args.quiet:
-            print(f"streaming {live.name} to {args.to} ({encoding}, newest frame first); waiting for the "
-                  f"service... (Ctrl-C to stop)", file=sys.stderr)
+            print(f"streaming {live.name} to {args.to} as stream {publisher.stream} ({encoding}, newest frame "
+                  f"first); waiting for the service... (Ctrl-C to stop)", file=sys.stderr)
         summary = relay_live(live, publisher, progress=not args.quiet, wait=args.wait)
     code = _finish(summary)
     if live.failure is not None:
@@ -126,7 +136,7 @@ def _publisher(args: argparse.Namespace, encoding: str, name: str) -> "FramePubl
     from lostx.stream.producer import FramePublisher
 
     return FramePublisher(args.to, encoding=encoding, quality=args.jpeg_quality or 90,
-                          keys=client_keys_from_args(args), name=f"lostx replay {name}")
+                          keys=client_keys_from_args(args), stream=args.stream, name=f"lostx replay {name}")
 
 
 def _finish(summary: "ReplaySummary") -> int:
