@@ -39,7 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
-from common import RESULTS, print_table, write_json
+from common import RESULTS, cpu_seconds, print_table, write_json
 from lostx.core import Config, Frame, Localizer, LostDescriber, ReferenceMap, load_backbone
 from lostx.core.build import build_map
 from lostx.core.paths import data_dir
@@ -65,12 +65,6 @@ def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
-
-
-def cpu_seconds(pid: int) -> float:
-    """User + system CPU time of a process (all its threads) so far."""
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 @dataclasses.dataclass
@@ -127,7 +121,7 @@ class Stream:
         self.arrivals = Arrivals(results_ep)
         self.service = procs.start("serve", lostx_command(
             "serve", "--map", str(refmap.path), "--frames", self.frames_ep, "--results", results_ep,
-            "--mode", "lossless"))
+            "--mode", "lossless", "--no-journal"))
         self.publishers: dict[str, FramePublisher] = {}
         self.next_id = 0
 

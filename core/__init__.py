@@ -3,23 +3,25 @@
 The main entry points::
 
     from lostx.core import Config, ReferenceMap, Localizer, build_map, load_backbone
+
+Names are imported on first use, so importing a submodule (``lostx.core.config``)
+does not load the network or the localizer.
 """
 
-from .backbones import Backbone, BackboneInfo, SemanticFrame, backbone_names, load_backbone
-from .build import BuildSummary, build_map
-from .config import Config, load_config
-from .describe import LostDescriber
-from .errors import ImageError, InputError, LostxError, MapError, ModelError
-from .estimate import Candidate, Estimate, Evidence
-from .frame import Frame
-from .localizer import Localizer
-from .matcher import MatchResult, PlaceMatcher
-from .refmap import ReferenceMap
-from .thumbnail import ThumbnailDescriber
+from .lazy import lazy_exports
 
-__all__ = [
-    "Backbone", "BackboneInfo", "BuildSummary", "Candidate", "Config", "Estimate", "Evidence", "Frame",
-    "ImageError", "InputError", "Localizer", "LostDescriber", "LostxError", "MapError", "MatchResult",
-    "ModelError", "PlaceMatcher", "ReferenceMap", "SemanticFrame", "ThumbnailDescriber", "backbone_names",
-    "build_map", "load_backbone", "load_config",
-]
+_EXPORTS = {
+    **dict.fromkeys(("Backbone", "BackboneInfo", "SemanticFrame", "backbone_names", "load_backbone"), ".backbones"),
+    **dict.fromkeys(("BuildSummary", "build_map"), ".build"),
+    **dict.fromkeys(("Config", "load_config"), ".config"),
+    "LostDescriber": ".describe",
+    **dict.fromkeys(("ImageError", "InputError", "LostxError", "MapError", "ModelError"), ".errors"),
+    **dict.fromkeys(("Candidate", "Estimate", "Evidence"), ".estimate"),
+    "Frame": ".frame",
+    "Localizer": ".localizer",
+    **dict.fromkeys(("MatchResult", "PlaceMatcher"), ".matcher"),
+    "ReferenceMap": ".refmap",
+    "ThumbnailDescriber": ".thumbnail",
+}
+__all__ = sorted(_EXPORTS)
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

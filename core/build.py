@@ -15,6 +15,7 @@ from .config import Config
 from .describe import DescribedFrame, LostDescriber
 from .errors import MapError
 from .frame import Frame
+from .inputcheck import ProfileBuilder
 from .lost import centred_window, window_means
 from .calibration import calibrate
 from .camera import Geometry
@@ -76,12 +77,14 @@ def build_map(
     overwrite: bool = False,
     total: int | None = None,
     progress: bool = True,
+    label: str | None = None,
 ) -> BuildSummary:
     """Describe every frame of a traverse and commit the map atomically.
 
     ``describer`` is a :class:`LostDescriber` (a LoST map: the default) or a
     :class:`ThumbnailDescriber` (a map of SeqSLAM thumbnails). Any error while
     reading or describing a frame aborts the build and leaves no map behind.
+    ``label`` names the work on the progress bar (default: the map folder's name).
     """
     config = config or Config()
     if describer is None:
@@ -101,24 +104,29 @@ def build_map(
         meta["geometry"] = geometry.record()
     else:
         meta["thumbnail"] = describer.settings()
-    bar = tqdm(total=total, desc=f"building {Path(out).name}", unit="frame", disable=not progress, leave=False)
+    profile = ProfileBuilder(meta.get("label_names"))
+    bar = tqdm(total=total, desc=label or f"building {Path(out).name}", unit="frame", disable=not progress,
+               leave=False)
     with MapWriter(out, kind, meta, backbone=info, overwrite=overwrite) as writer:
         try:
             if isinstance(describer, LostDescriber):
                 describe = lambda image: describer(geometry.prepare(image))  # noqa: E731
                 for frame, described, mu in _windowed(_ticking(frames, bar), describe, config.lost.reference_window):
+                    profile.add(frame.image, described.labels)
                     writer.add(
                         MapFrame(frame.name, describer.descriptor(described, mu), described.evidence,
                                  described.appearance(), frame.position, frame.timestamp)
                     )
             else:
                 for frame in _ticking(frames, bar):
+                    profile.add(frame.image)
                     writer.add(MapFrame(frame.name, describer(frame.image), position=frame.position,
                                         timestamp=frame.timestamp))
         finally:
             bar.close()
         if not writer.frames:
             raise MapError("the traverse has no frames; nothing to build")
+        writer.metadata["input"] = profile.profile().to_dict()
         path = writer.commit()
     refmap = ReferenceMap.open(path)
     backbone = describer.backbone if isinstance(describer, LostDescriber) else None

@@ -8,12 +8,15 @@ file whose tables are named after the sections::
     scoring = "released"
     top_k = 20
 
-Unknown keys are an error, so a typo never silently falls back to a default.
+Unknown keys are an error, so a typo never silently falls back to a default,
+and every number is checked against its valid range (:data:`LIMITS`) whenever
+a :class:`Config` is made, however it is made.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 import tomllib
 import typing
 from dataclasses import dataclass, field
@@ -212,6 +215,26 @@ class StreamConfig:
     """Seconds between stats (heartbeat) messages."""
     linger: float = 2.0
     """Seconds the service spends flushing results on exit."""
+    history: str = ""
+    """Where the service binds the history socket (ROUTER) from which listeners fetch journaled
+    answers; empty: the results endpoint with its port plus one (tcp) or ``-history`` appended."""
+    journal: Path | None = None
+    """Folder of the result journal: every answer is written there before its frame is acknowledged,
+    and listeners resume from it. ``None``: no journal."""
+    journal_segment_bytes: int = 16 * 1024 * 1024
+    """The journal starts a new segment file when the current one reaches this size."""
+    journal_max_bytes: int = 256 * 1024 * 1024
+    """The journal deletes its oldest segments to stay within this size."""
+    journal_fsync: bool = True
+    """Flush each batch of answers to the disk (fsync) before acknowledging the frames; ``False``
+    survives a crash of the service but not of the machine."""
+    max_streams: int = 64
+    """Streams with a state (a localizer each) at one time; a frame of one more is refused."""
+    stream_expiry: float = 300.0
+    """Seconds without a frame after which a stream's state is forgotten (its next frame starts afresh)."""
+    max_time_jump: float = 3600.0
+    """Seconds a frame's timestamp may jump ahead of its stream's previous one; further ahead is refused.
+    A jump back by more than this starts a new traverse (a restarted clock); less is refused."""
 
 
 @dataclass(frozen=True)
@@ -228,8 +251,76 @@ class Config:
     decision: DecisionConfig = field(default_factory=DecisionConfig)
     stream: StreamConfig = field(default_factory=StreamConfig)
 
+    def __post_init__(self) -> None:
+        check_config(self)
+
     def to_dict(self) -> dict[str, Any]:
         return _plain(dataclasses.asdict(self))
+
+
+@dataclass(frozen=True)
+class Bounds:
+    """The valid values of a number (or of each number of a list, which must not be empty)."""
+
+    low: float | None = None
+    high: float | None = None
+    above: bool = False
+    """``low`` itself is not allowed."""
+
+    def describe(self) -> str:
+        if self.low is None:
+            return "a number" if self.high is None else f"at most {self.high:g}"
+        if self.high is not None:
+            return f"between {self.low:g} and {self.high:g}"
+        return f"above {self.low:g}" if self.above else f"at least {self.low:g}"
+
+    def allows(self, value: float) -> bool:
+        if math.isnan(value):
+            return False
+        if self.low is not None and (value < self.low or (self.above and value == self.low)):
+            return False
+        return self.high is None or value <= self.high
+
+
+_AT_LEAST_0, _AT_LEAST_1, _ABOVE_0 = Bounds(0), Bounds(1), Bounds(0, above=True)
+
+LIMITS: dict[str, dict[str, Bounds]] = {
+    "backbone": {"threads": _AT_LEAST_1},
+    "lost": {"reference_window": _AT_LEAST_1, "query_window": _AT_LEAST_1, "prior_frames": _AT_LEAST_0},
+    "verify": {"top_k": _AT_LEAST_1, "uniqueness_exclusion": _AT_LEAST_0},
+    "sequence": {
+        "length": _AT_LEAST_1, "speeds": Bounds(), "acquire_speeds": Bounds(), "anchors": _AT_LEAST_0,
+        "radius": _AT_LEAST_0, "contrast_window": Bounds(2), "reference_prior": _AT_LEAST_0,
+        "penalty": Bounds(), "exclusion": _AT_LEAST_0, "min_confidence": Bounds(0, 1),
+    },
+    "tracker": {
+        "gate_sigma": _ABOVE_0, "relocalise_after": _AT_LEAST_1, "lost_after": _AT_LEAST_1,
+        "position_sigma": _ABOVE_0, "speed_sigma": _ABOVE_0, "acceleration_sigma": _ABOVE_0,
+    },
+    "stream": {
+        "window": _AT_LEAST_1, "queue": _AT_LEAST_1, "wait_listeners": _AT_LEAST_0, "max_message_bytes": _AT_LEAST_1,
+        "max_pixels": _AT_LEAST_1, "frame_hwm": _AT_LEAST_0, "result_hwm": _AT_LEAST_0,
+        "pending_results": _AT_LEAST_1, "stats_interval": _ABOVE_0, "linger": _AT_LEAST_0,
+        "journal_segment_bytes": _AT_LEAST_1, "journal_max_bytes": _AT_LEAST_1, "max_streams": Bounds(1, 256),
+        "stream_expiry": _ABOVE_0, "max_time_jump": _ABOVE_0,
+    },
+}
+"""Valid values of every numeric setting, by section and key (docs/config.md lists them)."""
+
+
+def check_config(config: Config) -> None:
+    """Raise :class:`InputError` naming the first setting outside its valid values."""
+    for section, rules in LIMITS.items():
+        values = getattr(config, section)
+        for key, bounds in rules.items():
+            value = getattr(values, key, None)
+            if value is None:
+                continue  # no such setting (any more): tests/test_config.py keeps LIMITS in step with the sections
+            if isinstance(value, tuple) and not value:
+                raise InputError(f"[{section}] {key} must not be empty")
+            for item in value if isinstance(value, tuple) else (value,):
+                if not bounds.allows(item):
+                    raise InputError(f"[{section}] {key} must be {bounds.describe()}, got {item!r}")
 
 
 def _plain(value: Any) -> Any:
@@ -253,7 +344,10 @@ def config_from_dict(data: dict[str, Any], base: Config | None = None, source: s
         if not isinstance(values, dict):
             raise InputError(f"{source}: [{name}] must be a table of settings")
         sections[name] = _section(getattr(base, name), values, f"{source} [{name}]")
-    return dataclasses.replace(base, **sections)
+    try:
+        return dataclasses.replace(base, **sections)
+    except InputError as exc:
+        raise InputError(f"{source}: {exc}") from None
 
 
 def _section(current: Any, values: dict[str, Any], where: str) -> Any:

@@ -53,6 +53,7 @@ from .estimate import Candidate, Estimate, Evidence
 from .frame import Frame, Heading
 from .heading import HeadingFilter
 from .images import check_frame
+from .inputcheck import InputCheck
 from .matcher import FrameMatch, MatchResult, PlaceMatcher
 from .refmap import ReferenceMap
 from .search import top_k
@@ -85,6 +86,7 @@ class Localizer:
         self.tracker = RouteTracker(self.config.tracker)
         self.heading = HeadingFilter(self.config.heading)
         self._last_timestamp: float | None = None
+        self.input_check = InputCheck.for_map(refmap.manifest)
 
     def reset(self) -> None:
         """Forget everything seen so far (start of a new traverse)."""
@@ -107,6 +109,7 @@ class Localizer:
                     f"{self._last_timestamp}; frames must arrive in time order (reset the localizer for a new traverse)"
                 )
         matches = self.matcher.match(frame.image)
+        self.input_check(frame.id, frame.image, matches.same.query_labels)
         if frame.timestamp is not None:
             self._last_timestamp = frame.timestamp
         estimate = self.update(frame, matches)

@@ -2,7 +2,8 @@
 
 A map is a folder::
 
-    manifest.json           format, version, backbone, classes, settings, frames,
+    manifest.json           format, version, backbone, classes, settings, frames, input (what the
+                            frames looked like: lostx.core.inputcheck),
                             and every array's dtype, shape, size and sha256
     descriptors.npy         (N, K) float16 normalised LoST descriptors, or uint8 thumbnails
     stats_mean.npy          (K,) float32  } per-dimension statistics of the raw
@@ -46,6 +47,7 @@ from .backbones import BackboneInfo, Quantisation
 from .errors import MapError
 from .keypoints import KeypointEvidence
 from .lost import DescriptorStats, standardise
+from .outputs import check_output_folder
 
 if TYPE_CHECKING:
     from .calibration import Calibration
@@ -85,7 +87,7 @@ class MapWriter:
         backbone: BackboneInfo | None = None,
         overwrite: bool = False,
     ) -> None:
-        self.out = Path(out)
+        self.out = check_output_folder(out, "map folder")
         if self.out.exists() and not overwrite:
             raise MapError(f"{self.out} already exists; pass --overwrite to replace it")
         if self.out.exists() and not (self.out / "manifest.json").is_file() and any(self.out.iterdir()):

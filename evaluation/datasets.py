@@ -6,12 +6,14 @@ Pair formats (``format=`` or recognised from the folders):
   (given as the reference; there is no separate query folder);
 - ``robotcar``: RobotCar traverse folders, a camera chosen for each side;
 - ``folder``: folders of images in name order with positions CSVs: ground truth
-  by distance in metres;
-- ``pairs``: two folders of images in name order where the same index is the
-  same place (Nordland, the RobotCar day/night sample): ground truth in frames.
+  by distance in metres; likewise ``bag``, ``video`` and ``nuscenes`` sources (and
+  pairs of different formats), by their positions;
+- ``pairs``: two folders of images in name order (or two videos) where the same
+  index is the same place (Nordland, the RobotCar day/night sample): ground truth
+  in frames.
 
-Two plain image folders are ``folder`` when both have positions, ``pairs`` when
-neither has.
+Two plain image folders (or videos) are ``folder`` when both have positions,
+``pairs`` when neither has.
 """
 
 from __future__ import annotations
@@ -24,13 +26,16 @@ import numpy as np
 
 from lostx.core.errors import InputError
 from lostx.core.frame import Camera
-from lostx.replay.dataset import FORMATS, POSITIONS_FILE, detect_format, open_traverse
+from lostx.replay.dataset import FORMATS, POSITIONS_FILE, SourceOptions, detect_format, open_traverse
 from lostx.replay.folder import Traverse
 from lostx.replay.positions import latlon_to_local
 from lostx.replay.subsample import subsample_by_distance
 from lostx.replay.vprbench import GROUND_TRUTH, is_vprbench, vprbench_traverse
 
 from .groundtruth import GroundTruth, Unit, from_indices, from_positions, load_vprbench
+
+ALIGNABLE = ("folder", "video")
+"""Formats read without positions as index-aligned pairs when neither side has any."""
 
 
 @dataclass
@@ -105,17 +110,25 @@ def open_pair(
     query: str | Path | None = None,
     format: str | None = None,
     *,
-    reference_camera: Camera | None = "front",
+    reference_camera: Camera | None = None,
     query_camera: Camera | None = None,
     reference_positions: str | Path | None = None,
     query_positions: str | Path | None = None,
     mirror_query: bool = False,
     spacing: float | None = None,
+    options: SourceOptions | None = None,
+    reverse_query: bool = False,
+    undeclared: bool = False,
 ) -> DatasetPair:
     """Read a reference/query pair in any supported format (see the module docstring).
 
-    ``spacing`` subsamples both traverses by distance travelled (metres). The
-    result's :meth:`DatasetPair.ground_truth` gives the true sets at any tolerances.
+    A camera left as None is what the source declares (RobotCar: front). ``options``
+    apply to each side whose format uses them (a bag's topics, a nuScenes scene, every
+    N-th frame...). ``spacing`` subsamples both traverses by distance travelled (metres);
+    ``reverse_query`` then runs the query backwards (the route driven the other way).
+    ``undeclared`` drops the query camera's declared direction: the heading is then found from
+    the images alone.
+    The result's :meth:`DatasetPair.ground_truth` gives the true sets at any tolerances.
     """
     if format is not None and format not in FORMATS:
         raise InputError(f"unknown dataset format {format!r}; expected one of {', '.join(FORMATS)}")
@@ -128,40 +141,63 @@ def open_pair(
                 f"{reference}: no query folder given, and this is not a VPR-Bench dataset (ref/, query/, "
                 f"ground_truth_new.npy)"
             )
-        ref, qry, listed = vprbench_pair(reference, query_camera, reference_camera, mirror_query)
+        if options is not None and options != SourceOptions():
+            raise InputError(f"{reference}: a VPR-Bench dataset is read whole; source options do not apply")
+        ref, qry, listed = vprbench_pair(reference, query_camera, reference_camera or "front", mirror_query)
         pair = DatasetPair(ref, qry, "vprbench", listed=listed)
-        return pair.subsampled(spacing) if spacing else pair
+        return _finish(pair, spacing, reverse_query, undeclared)
     if query is None:
         raise InputError(f"no query folder given for the {format} reference {reference}")
     query = Path(query)
 
-    kinds = (format, format) if format else (detect_format(reference), detect_format(query))
+    if format == "pairs":  # index-aligned: folders read as plain folders, recordings as what they are
+        kinds = tuple("pairs" if side.is_dir() else detect_format(side) for side in (reference, query))
+    else:
+        kinds = (format, format) if format else (detect_format(reference), detect_format(query))
     for kind, side in zip(kinds, (reference, query)):
         if kind == "vprbench":
             raise InputError(f"{side} is a VPR-Bench dataset (ref/ and query/ inside); give it alone as the reference")
-    ref = open_traverse(reference, kinds[0], reference_camera, reference_positions)
-    qry = open_traverse(query, kinds[1], query_camera, query_positions, mirror_query)
+    options = options or SourceOptions()
+    misplaced = sorted(set(options.misplaced(kinds[0])) & set(options.misplaced(kinds[1])))
+    if misplaced:
+        raise InputError(f"{', '.join(misplaced)} {'does' if len(misplaced) == 1 else 'do'} not apply to a "
+                         f"{kinds[0]} or {kinds[1]} source")
+    ref = open_traverse(reference, kinds[0], reference_camera, reference_positions, options=options.only_for(kinds[0]))
+    qry = open_traverse(query, kinds[1], query_camera, query_positions, mirror_query, options.only_for(kinds[1]))
 
-    if format == "pairs" or (format is None and kinds == ("folder", "folder") and not _any_positions(ref, qry)):
+    unplaced = format is None and set(kinds) <= set(ALIGNABLE)  # formats that may come without positions
+    if format == "pairs" or (unplaced and not _any_positions(ref, qry)):
         check_aligned(ref, qry)
         pair = DatasetPair(ref, qry, "pairs", aligned=True)
     else:
-        if format is None and kinds == ("folder", "folder") and not (ref.positions is not None and qry.positions is not None):
+        if unplaced and not (ref.positions is not None and qry.positions is not None):
             without = reference if ref.positions is None else query
             raise InputError(
-                f"{without} has no positions but the other folder has: give positions for both (a "
-                f"{POSITIONS_FILE} or a CSV), or use --format pairs for index-aligned folders"
+                f"{without} has no positions but the other traverse has: give positions for both (a "
+                f"{POSITIONS_FILE} or a CSV), or use --format pairs for index-aligned traverses"
             )
         name = kinds[0] if kinds[0] == kinds[1] else f"{kinds[0]}+{kinds[1]}"
         pair = DatasetPair(ref, qry, name)
-    return pair.subsampled(spacing) if spacing else pair
+    return _finish(pair, spacing, reverse_query, undeclared)
+
+
+def _finish(pair: DatasetPair, spacing: float | None, reverse_query: bool, undeclared: bool) -> DatasetPair:
+    if spacing:
+        pair = pair.subsampled(spacing)
+    if reverse_query:
+        if pair.listed is not None:
+            raise InputError("a VPR-Bench ground truth lists the queries in their order; they cannot be reversed")
+        pair = replace(pair, query=pair.query.reversed())
+    if undeclared:
+        pair = replace(pair, query=replace(pair.query, camera=None))
+    return pair
 
 
 def check_aligned(reference: Traverse, query: Traverse) -> None:
     """Index-aligned pairs must have one query per reference frame."""
     if len(reference) != len(query):
         shorter, longer = (reference, query) if len(reference) < len(query) else (query, reference)
-        extra = longer.files[len(shorter)]
+        extra = longer.names[len(shorter)]
         raise InputError(
             f"index-aligned pair of different lengths: {reference.root} has {len(reference)} images, "
             f"{query.root} has {len(query)}; index {len(shorter)} ({extra}) has no counterpart"

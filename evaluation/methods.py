@@ -45,17 +45,11 @@ from lostx.core.search import cosine_distances, top_k
 from lostx.core.thumbnail import ThumbnailDescriber
 from lostx.replay.folder import Traverse
 
+from .catalogue import METHODS, MODES
 from .datasets import DatasetPair
 from .groundtruth import GroundTruth
 from .metrics import Evaluation, evaluate_tolerances
 
-METHODS: dict[str, str] = {
-    "lostx": "LoST-X",
-    "lost": "LoST",
-    "appearance": "appearance (GeM)",
-    "thumbnail": "thumbnail (SeqSLAM)",
-}
-MODES = ("single", "sequence")
 DEFAULT_TOLERANCES = {"frames": (0.0, 1.0, 2.0), "m": (5.0, 10.0, 20.0, 40.0, 80.0)}
 NETWORK_METHODS = ("lostx", "lost", "appearance")
 
@@ -81,8 +75,7 @@ class Run:
 
 
 def _fingerprint(traverse: Traverse, extra: dict) -> str:
-    files = [(f.name, f.stat().st_size, f.stat().st_mtime_ns) for f in traverse.files]
-    payload = json.dumps({"files": files, "mirror": traverse.mirror, **extra}, sort_keys=True, default=str)
+    payload = json.dumps({"frames": traverse.fingerprint(), **extra}, sort_keys=True, default=str)
     return hashlib.sha256(payload.encode()).hexdigest()[:16]
 
 
@@ -100,21 +93,23 @@ def reference_maps(pair: DatasetPair, config: Config, cache: Path, methods: Sequ
         assert backbone is not None
         key = _fingerprint(pair.reference, {"kind": "lost", **_settings_key(config, backbone)})
         maps["lost"] = _cached_map(cache / f"reference-lost-{key}", pair.reference, config,
-                                   LostDescriber(backbone, config.lost), meta, progress)
+                                   LostDescriber(backbone, config.lost), meta, progress, "describing references")
     if "thumbnail" in methods:
         key = _fingerprint(pair.reference, {"kind": "thumbnail"})
         maps["thumbnail"] = _cached_map(cache / f"reference-thumbnail-{key}", pair.reference, config,
-                                        ThumbnailDescriber(), meta, progress)
+                                        ThumbnailDescriber(), meta, progress, "reference thumbnails")
     return maps
 
 
-def _cached_map(path: Path, traverse: Traverse, config: Config, describer, meta: dict, progress: bool) -> ReferenceMap:
+def _cached_map(path: Path, traverse: Traverse, config: Config, describer, meta: dict, progress: bool,
+                label: str) -> ReferenceMap:
     if (path / "manifest.json").is_file():
         try:
             return ReferenceMap.open(path)
         except MapError:
             pass  # a damaged cache entry is rebuilt
-    build_map(traverse, path, config, describer, meta, overwrite=True, total=len(traverse), progress=progress)
+    build_map(traverse, path, config, describer, meta, overwrite=True, total=len(traverse), progress=progress,
+              label=label)
     return ReferenceMap.open(path)
 
 
@@ -190,7 +185,7 @@ def single_results(method: str, pair: DatasetPair, maps: dict[str, ReferenceMap]
                    progress: bool) -> list[FrameMatch]:
     if method == "thumbnail":
         matcher = PlaceMatcher(maps["thumbnail"], config)
-        frames = tqdm(pair.query, total=len(pair.query), desc="thumbnails", unit="frame", disable=not progress,
+        frames = tqdm(pair.query, total=len(pair.query), desc="query thumbnails", unit="frame", disable=not progress,
                       leave=False)
         return [matcher.match(f.image) for f in frames]
     assert descriptions is not None

@@ -1,7 +1,11 @@
-"""Evaluation reports: ``report.json``, a markdown table, and PNG figures (PR curves, max F1 against radius).
+"""Evaluation reports: ``report.json``, ``report.md`` (settings, table, figures), and PNG figures
+(PR curves, max F1 against the tolerance).
 
-Figures are drawn on Matplotlib's Agg canvas directly (no pyplot), so importing
-this module never changes the backend of a program that also shows windows.
+The table's columns are :data:`TABLE_COLUMNS` (add one there and every report
+has it). In the figures a method keeps one colour, solid for its single-frame
+line and dashed for its sequence line. Figures are drawn on Matplotlib's Agg
+canvas directly (no pyplot), so importing this module never changes the
+backend of a program that also shows windows.
 """
 
 from __future__ import annotations
@@ -9,24 +13,26 @@ from __future__ import annotations
 import json
 import math
 import os
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterable, Literal, Sequence
+from typing import Any, Callable, Iterable, Literal, Sequence
 
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.colors import to_rgb
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
 from lostx.core.errors import InputError
+from .catalogue import MODES
 from .metrics import Evaluation, PRCurve, max_f1_by_tolerance
 
 Mode = Literal["single", "sequence"]
-MODES = ("single", "sequence")
 REQUIRED_KEYS = (
     "method", "mode", "tolerance", "tolerance_unit", "recall_at_100p", "max_f1", "auc_pr",
     "recall_at_1", "recall_at_5", "recall_at_10", "n_queries",
 )
-UNIT_LABELS = {"m": "localization radius (m)", "frames": "frame tolerance (frames)"}
+UNIT_LABELS = {"m": "localization radius (m)", "frames": "tolerance (frames)"}
 
 
 def report_entry(method: str, mode: Mode, evaluation: Evaluation, **extra: Any) -> dict[str, Any]:
@@ -90,30 +96,92 @@ def _fmt(value: Any, percent: bool) -> str:
     return str(value)
 
 
+def quantity(value: float, unit: str) -> str:
+    """A tolerance with its unit: ``0 frames``, ``1 frame``, ``2.5 m``."""
+    return f"{value:g} {'frame' if unit == 'frames' and value == 1 else unit}"
+
+
+def _percent(key: str) -> Callable[[dict[str, Any]], str]:
+    return lambda entry: _fmt(entry[key], True)
+
+
+TABLE_COLUMNS: list[tuple[str, Callable[[dict[str, Any]], str]]] = [
+    ("method", lambda e: str(e["method"])),
+    ("mode", lambda e: str(e["mode"])),
+    ("tolerance", lambda e: quantity(e["tolerance"], e["tolerance_unit"])),
+    ("R@100P %", _percent("recall_at_100p")),
+    ("max F1 %", _percent("max_f1")),
+    ("AUC-PR %", _percent("auc_pr")),
+    ("R@1 %", _percent("recall_at_1")),
+    ("R@5 %", _percent("recall_at_5")),
+    ("R@10 %", _percent("recall_at_10")),
+    ("queries", lambda e: str(e["n_queries"])),
+]
+"""The markdown table: (header, cell of an entry); the first two columns are text, the rest numbers."""
+
+
 def markdown_table(entries: Iterable[dict[str, Any]]) -> str:
     """A GitHub markdown table of the entries; rates in percent, 'n/a' where undefined."""
-    rows = list(entries)
-    header = ["method", "mode", "tolerance", "R@100P %", "max F1 %", "AUC-PR %", "R@1 %", "R@5 %", "R@10 %", "queries"]
+    header = [name for name, _ in TABLE_COLUMNS]
     lines = ["| " + " | ".join(header) + " |", "|" + "|".join(["---"] * 2 + ["---:"] * (len(header) - 2)) + "|"]
-    for e in rows:
-        cells = [
-            str(e["method"]),
-            str(e["mode"]),
-            f"{_fmt(e['tolerance'], False)} {e['tolerance_unit']}",
-            *(_fmt(e[k], True) for k in ("recall_at_100p", "max_f1", "auc_pr", "recall_at_1", "recall_at_5",
-                                           "recall_at_10")),
-            str(e["n_queries"]),
-        ]
-        lines.append("| " + " | ".join(cells) + " |")
+    for entry in entries:
+        lines.append("| " + " | ".join(cell(entry) for _, cell in TABLE_COLUMNS) + " |")
     return "\n".join(lines) + "\n"
 
 
-def write_markdown(path: str | Path, entries: Iterable[dict[str, Any]], title: str | None = None) -> Path:
+def write_markdown(path: str | Path, entries: Iterable[dict[str, Any]], title: str | None = None,
+                   settings: dict[str, Any] | None = None, figures: Sequence[tuple[str, str | Path]] = ()) -> Path:
+    """``report.md``: the title, the settings that produced the numbers, the table, and the figures
+    (``(caption, file)``, linked relative to the report)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    text = (f"# {title}\n\n" if title else "") + markdown_table(entries)
-    path.write_text(text)
+    parts = [f"# {title}\n"] if title else []
+    if settings:
+        rows = "".join(f"| {key} | {value} |\n" for key, value in settings.items())
+        parts.append(f"## Settings\n\n| setting | value |\n|---|---|\n{rows}")
+    parts.append(("## Results\n\n" if settings or figures else "") + markdown_table(entries))
+    if figures:
+        parts.append("## Figures\n\n" + "\n".join(
+            f"![{caption}]({Path(file).relative_to(path.parent) if Path(file).is_absolute() else file})\n"
+            for caption, file in figures))
+    path.write_text("\n".join(parts))
     return path
+
+
+@dataclass(frozen=True)
+class LineStyle:
+    """How one line of a figure is drawn."""
+
+    colour: Any
+    dashes: str = "-"
+    width: float = 1.6
+    layer: int = 2
+    """Matplotlib z-order: narrower lines are drawn over wider ones."""
+
+
+MODE_DASHES = {"single": "-", "sequence": "--"}
+
+
+def method_styles(lines: Sequence[tuple[str, str]]) -> list[LineStyle]:
+    """Styles for ``(method, mode)`` lines: one hue per method, a solid single-frame line and a narrower,
+    lighter, dashed sequence line drawn over it. Earlier methods are drawn wider, so lines lying on one
+    another (two perfect methods, or a method's two modes) stay visible."""
+    methods = list(dict.fromkeys(method for method, _ in lines))
+    styles = []
+    for method, mode in lines:
+        rank = methods.index(method)
+        width = 1.6 + 0.9 * (len(methods) - 1 - rank)
+        colour = to_rgb(f"C{rank % 10}")
+        if mode == "single":
+            styles.append(LineStyle(colour, MODE_DASHES["single"], width, layer=2 + rank))
+        else:
+            lighter = tuple(c + (1 - c) * 0.45 for c in colour)
+            styles.append(LineStyle(lighter, MODE_DASHES.get(mode, ":"), max(1.2, 0.5 * width), layer=10 + rank))
+    return styles
+
+
+def _default_styles(n: int) -> list[LineStyle]:
+    return [LineStyle(f"C{i % 10}") for i in range(n)]
 
 
 def _save(fig: Figure, path: str | Path) -> Path:
@@ -124,60 +192,84 @@ def _save(fig: Figure, path: str | Path) -> Path:
     return path
 
 
-def _legend_below(ax: Any, n: int) -> None:
+def _percent_axis(axis: Any) -> None:
+    # A margin beyond 0 and 100 %: a perfect curve runs inside the frame, not hidden under its border.
+    axis.set_ticks(np.arange(0, 101, 20))
+
+
+def _legend_below(ax: Any, n: int, marker_meaning: str) -> None:
     # Below the axes, never over the curves: PR curves and F1 lines can run anywhere in the plot.
+    ax.plot([], [], "o", color="0.6", markeredgecolor="0.2", markeredgewidth=0.6, markersize=5, label=marker_meaning)
     ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=1 if n > 4 else 2, fontsize="small",
               frameon=False)
 
 
-def plot_pr_curves(series: Sequence[tuple[str, PRCurve]], path: str | Path, title: str = "") -> Path:
-    """Precision against recall, one line per (label, curve); the marker is each curve's max-F1 point."""
+def pr_line(curve: PRCurve) -> tuple[np.ndarray, np.ndarray]:
+    """The (recall %, precision %) points of a PR curve as drawn: those at recall 0 are left out, since
+    precision there only says whether the most confident answers were wrong (a line from (0, 0) reads
+    as a curve that starts at zero precision)."""
+    shown = curve.recall > 0
+    return curve.recall[shown] * 100, curve.precision[shown] * 100
+
+
+def plot_pr_curves(series: Sequence[tuple[str, PRCurve]], path: str | Path, title: str = "",
+                   styles: Sequence[LineStyle] | None = None) -> Path:
+    """Precision against recall (:func:`pr_line`), one line per (label, curve); the dot marks each
+    curve's max-F1 point."""
     if not series:
         raise InputError("no PR curves to plot")
-    fig = Figure(figsize=(6.4, 5.2), dpi=120)
+    styles = list(styles) if styles is not None else _default_styles(len(series))
+    fig = Figure(figsize=(6.4, 5.4), dpi=120)
     ax = fig.add_subplot(1, 1, 1)
-    for label, curve in series:
-        if len(curve) == 0 or curve.n_positives == 0:
-            ax.plot([], [], label=f"{label} (no accepted query)")
+    for (label, curve), style in zip(series, styles):
+        recall, precision = pr_line(curve)
+        if not len(recall):
+            ax.plot([], [], style.dashes, color=style.colour, label=f"{label} (no correct answer)")
             continue
-        # Start at recall 0 with the strictest point's precision so the line reaches the axis.
-        recall = np.r_[0.0, curve.recall] * 100
-        precision = np.r_[curve.precision[0], curve.precision] * 100
-        style = "--" if "sequence" in label else "-"  # identical curves of two modes stay visible
-        (line,) = ax.plot(recall, precision, style, label=label, linewidth=1.6)
+        ax.plot(recall, precision, style.dashes, color=style.colour, linewidth=style.width, label=label,
+                marker="." if len(recall) == 1 else "", zorder=style.layer)
         k = int(np.argmax(curve.f1))
-        ax.plot([curve.recall[k] * 100], [curve.precision[k] * 100], "o", color=line.get_color(), markersize=5)
-    ax.set_xlim(0, 100)
-    ax.set_ylim(0, 102)
+        ax.plot([curve.recall[k] * 100], [curve.precision[k] * 100], "o", color=style.colour, markersize=5,
+                markeredgecolor="0.2", markeredgewidth=0.6, zorder=20)
+    ax.set_xlim(-3, 103)
+    ax.set_ylim(-3, 103)
+    _percent_axis(ax.xaxis)
+    _percent_axis(ax.yaxis)
     ax.set_xlabel("recall (% of queries with a true match)")
     ax.set_ylabel("precision (%)")
     ax.grid(True, alpha=0.3)
-    ax.set_title(title or "Precision-recall (dot: max F1)")
-    _legend_below(ax, len(series))
+    ax.set_title(title or "Precision-recall")
+    _legend_below(ax, len(series) + 1, "max F1 of the line")
     return _save(fig, path)
 
 
 def plot_max_f1_vs_tolerance(
-    series: Sequence[tuple[str, Sequence[Evaluation]]], path: str | Path, title: str = ""
+    series: Sequence[tuple[str, Sequence[Evaluation]]], path: str | Path, title: str = "",
+    styles: Sequence[LineStyle] | None = None,
 ) -> Path:
-    """Max F1 against the localization radius (or frame tolerance): one line per (label, evaluations)."""
+    """Max F1 against the localization radius (or frame tolerance): one line per (label, evaluations),
+    a dot at each tolerance evaluated."""
     if not series:
         raise InputError("no max-F1 series to plot")
     units = {e.unit for _, evals in series for e in evals}
     if len(units) != 1:
         raise InputError(f"max-F1 series mix tolerance units {sorted(units)}; plot one unit per figure")
     unit = units.pop()
-    fig = Figure(figsize=(6.4, 4.8), dpi=120)
+    styles = list(styles) if styles is not None else _default_styles(len(series))
+    fig = Figure(figsize=(6.4, 5.0), dpi=120)
     ax = fig.add_subplot(1, 1, 1)
-    for label, evals in series:
+    for (label, evals), style in zip(series, styles):
         tol, f1 = max_f1_by_tolerance(evals)
-        ax.plot(tol, f1 * 100, "o-", label=label, linewidth=1.6, markersize=4)
+        ax.plot(tol, f1 * 100, style.dashes, color=style.colour, linewidth=style.width, label=label,
+                marker="o", markersize=4, markeredgecolor="0.2", markeredgewidth=0.6, zorder=style.layer)
     ax.set_xlabel(UNIT_LABELS.get(unit, unit))
     ax.set_ylabel("max F1 (%)")
-    ax.set_ylim(0, 102)
+    ax.set_ylim(-3, 103)
+    _percent_axis(ax.yaxis)
+    ax.margins(x=0.04)
     ax.grid(True, alpha=0.3)
     if unit == "frames":
         ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     ax.set_title(title or "Max F1 against localization tolerance")
-    _legend_below(ax, len(series))
+    _legend_below(ax, len(series) + 1, "a tolerance evaluated")
     return _save(fig, path)

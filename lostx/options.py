@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import math
 import sys
 import time
 from pathlib import Path
@@ -11,9 +12,41 @@ from typing import TYPE_CHECKING
 
 from lostx.core.config import Config, load_config
 
+DEFAULTS = Config()
+
 if TYPE_CHECKING:
     from lostx.core.refmap import ReferenceMap
     from lostx.viz.sink import RerunSink
+
+
+def whole_number(minimum: int = 1):
+    """argparse ``type``: an integer of at least ``minimum``, or a one-line error naming the value."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"must be at least {minimum}, got {value}")
+        return value
+
+    return parse
+
+
+def number(minimum: float = 0.0, above: bool = False):
+    """argparse ``type``: a finite number of at least ``minimum`` (or above it, with ``above``)."""
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+        if not math.isfinite(value) or value < minimum or (above and value == minimum):
+            raise argparse.ArgumentTypeError(f"must be {'above' if above else 'at least'} {minimum:g}, got {text}")
+        return value
+
+    return parse
 
 
 def add_backbone_options(parser: argparse.ArgumentParser) -> None:
@@ -21,16 +54,22 @@ def add_backbone_options(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--backbone", help="semantic backbone name (see `lostx backbones`)")
     group.add_argument("--model", type=Path, help="model file of the backbone (default: in ../shared/models)")
     group.add_argument("--device", help="cpu, cuda or cuda:N (PyTorch backbones)")
-    group.add_argument("--threads", type=int, help="CPU threads for the network")
+    group.add_argument("--threads", type=whole_number(1), metavar="N",
+                       help=f"CPU threads for the network (default {DEFAULTS.backbone.threads})")
 
 
-def add_config_options(parser: argparse.ArgumentParser) -> None:
+def add_config_options(parser: argparse.ArgumentParser, matching: bool = True) -> None:
+    """``--config`` and the backbone options; with ``matching``, also the options of the matching stages."""
     parser.add_argument("--config", type=Path, help="TOML file of settings (see docs/config.md)")
     add_backbone_options(parser)
+    if not matching:
+        return
     group = parser.add_argument_group("matching")
     group.add_argument("--scoring", choices=["eq4-lost", "eq4", "released"], help="verification score")
-    group.add_argument("--top-k", type=int, help="candidates verified per query (default 10)")
-    group.add_argument("--window", type=int, help="frames in the sequence filter's window (default 20)")
+    group.add_argument("--top-k", type=whole_number(1), metavar="K",
+                       help=f"candidates verified per query (default {DEFAULTS.verify.top_k})")
+    group.add_argument("--window", type=whole_number(1), metavar="L",
+                       help=f"frames in the sequence filter's window (default {DEFAULTS.sequence.length})")
     group.add_argument("--no-tracker", action="store_true", help="answer without the route tracker")
 
 
@@ -44,14 +83,53 @@ def config_from_args(args: argparse.Namespace) -> Config:
     verify = config.verify
     if getattr(args, "scoring", None):
         verify = dataclasses.replace(verify, scoring=args.scoring)
-    if getattr(args, "top_k", None):
+    if getattr(args, "top_k", None) is not None:
         verify = dataclasses.replace(verify, top_k=args.top_k)
     sequence, tracker = config.sequence, config.tracker
-    if getattr(args, "window", None):
+    if getattr(args, "window", None) is not None:
         sequence = dataclasses.replace(sequence, length=args.window)
     if getattr(args, "no_tracker", False):
         tracker = dataclasses.replace(tracker, enabled=False)
     return dataclasses.replace(config, backbone=backbone, verify=verify, sequence=sequence, tracker=tracker)
+
+
+SOURCE_FORMATS = ("folder", "robotcar", "bag", "video", "nuscenes")
+
+
+def add_source_options(parser: argparse.ArgumentParser, *, format: bool = True, reverse: bool = False) -> None:
+    """How to read a traverse: its format, a bag's topics, a nuScenes scene, which frames (docs/datasets.md)."""
+    group = parser.add_argument_group("source (see docs/datasets.md)")
+    if format:
+        group.add_argument("--format", choices=SOURCE_FORMATS, help="the source's format (default: recognised)")
+    group.add_argument("--topic", help="bag: the image topic (sensor_msgs/Image or CompressedImage; "
+                       "default: the bag's only one)")
+    group.add_argument("--pose-topic", metavar="TOPIC", help="bag: the positions topic (Odometry, PoseStamped "
+                       "or NavSatFix; default: the bag's only one)")
+    group.add_argument("--scene", help="nuScenes: the scene, e.g. scene-0523 (default: the only one with images)")
+    group.add_argument("--channel", help="nuScenes: the camera channel at a dataset root (default CAM_FRONT)")
+    group.add_argument("--look-at", type=float, nargs="?", const=15.0, metavar="M",
+                       help="nuScenes: positions M metres along the camera's heading (default 15) instead of "
+                            "the vehicle's")
+    frames = group.add_mutually_exclusive_group()
+    frames.add_argument("--every", type=int, metavar="N", help="keep every N-th frame")
+    frames.add_argument("--fps", type=float, metavar="F", help="keep F frames per second of recorded time")
+    if reverse:
+        group.add_argument("--reverse", action="store_true", help="the frames in reverse order, timestamps "
+                           "reflected: the route driven the other way")
+
+
+def source_options_from_args(args: argparse.Namespace):
+    """The :class:`~lostx.replay.dataset.SourceOptions` the command line gives."""
+    from lostx.replay.dataset import SourceOptions
+
+    return SourceOptions(topic=args.topic, pose_topic=args.pose_topic, scene=args.scene, channel=args.channel,
+                         look_at=args.look_at, every=args.every, fps=args.fps)
+
+
+def print_notes(notes: list[str]) -> None:
+    """What the readers skipped or assumed, one line each."""
+    for note in notes:
+        print(f"note: {note}")
 
 
 def add_stream_options(parser: argparse.ArgumentParser) -> None:
@@ -68,6 +146,20 @@ def add_stream_options(parser: argparse.ArgumentParser) -> None:
                        help="hold producers back until N listeners subscribe (lossless: at least 1)")
     group.add_argument("--max-message-bytes", type=int, metavar="BYTES", help="largest frame message (default 16 MiB)")
     group.add_argument("--stats-interval", type=float, metavar="S", help="seconds between stats messages (default 1)")
+    group.add_argument("--max-streams", type=int, metavar="N",
+                       help="streams (a localizer state each) at one time; one more is refused (default 64)")
+    group.add_argument("--stream-expiry", type=float, metavar="S",
+                       help="forget a stream after S seconds without a frame (default 300)")
+    journal = parser.add_argument_group("journal (lossless mode needs one, or --no-journal)")
+    choice = journal.add_mutually_exclusive_group()
+    choice.add_argument("--journal", type=Path, metavar="DIR",
+                        help="write every answer to the journal in DIR before acknowledging its frame; "
+                             "listeners resume from it (lostx listen --resume)")
+    choice.add_argument("--no-journal", action="store_true",
+                        help="lossless without a journal: answers a listener had not read when it died are lost")
+    journal.add_argument("--history", metavar="ENDPOINT",
+                         help="bind the history socket (journaled answers for listeners) here "
+                              "(default: the results port plus one)")
 
 
 def add_client_key_options(parser: argparse.ArgumentParser) -> None:
@@ -93,10 +185,13 @@ def stream_config_from_args(args: argparse.Namespace, config: Config) -> Config:
     """``config`` with the stream settings given on the command line applied."""
     changes = {
         name: getattr(args, name, None)
-        for name in ("frames", "results", "mode", "wait_listeners", "max_message_bytes", "stats_interval")
+        for name in ("frames", "results", "mode", "wait_listeners", "max_message_bytes", "stats_interval",
+                     "max_streams", "stream_expiry", "journal", "history")
     }
     changes["window"] = getattr(args, "credit", None)
     stream = dataclasses.replace(config.stream, **{k: v for k, v in changes.items() if v is not None})
+    if getattr(args, "no_journal", False):
+        stream = dataclasses.replace(stream, journal=None)
     return dataclasses.replace(config, stream=stream)
 
 

@@ -1,32 +1,32 @@
-"""A traverse: frames of one recorded drive, read from disk lazily; and the plain folder-of-images reader."""
+"""A traverse: frames of one recorded drive, read lazily, in order; and the plain folder-of-images reader."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Callable, Iterator, Sequence
+from typing import Iterator, Sequence
 
 import numpy as np
 
 from lostx.core.errors import InputError
 from lostx.core.frame import Camera, Frame
-from lostx.core.images import list_images, read_image
+from lostx.core.images import list_images
 
 from .positions import align_positions, read_positions
-
-ImageLoader = Callable[[Path], np.ndarray]
+from .store import ImageFiles, ImageStore
 
 
 @dataclass
 class Traverse:
-    """Frames of one recorded traverse, read from disk lazily, in order.
+    """Frames of one recorded traverse, read lazily, in order.
 
     Every dataset reader returns these, so everything downstream (maps, matching,
     evaluation, replay) sees one shape whatever the format on disk.
     """
 
     name: str
-    files: list[Path]
+    images: ImageStore
+    """Where the pixels are (``ImageFiles`` for one file per frame; a list of paths is taken as that)."""
     positions: np.ndarray | None = None
     """(N, 2) metres (x east, y north) or None. Derived from ``geo`` when that is set."""
     timestamps: np.ndarray | None = None
@@ -35,49 +35,78 @@ class Traverse:
     """The camera's direction where the source declares it (``None``: not declared)."""
     mirror: bool = False
     """Flip every image left-right (a test of the flip handling, not an opposite view)."""
-    loader: ImageLoader | None = None
-    """Reads one file as RGB uint8 (e.g. demosaicing raw Bayer); ``read_image`` when None."""
     geo: np.ndarray | None = None
     """(N, 2) latitude, longitude in degrees when the positions came from them. Two traverses'
     local metres are only comparable after projecting both about one origin (``lostx.evaluation.datasets``)."""
     notes: list[str] = field(default_factory=list)
     """What the reader did that a user should know (frames skipped, fallbacks taken)."""
     source_indices: np.ndarray | None = None
-    """(N,) index of each frame in the traverse as read, when this is a subset (subsampling)."""
+    """(N,) row of each frame in the recording as read, when this is a subset (subsampling, reversal)."""
+    metadata: dict[str, np.ndarray] = field(default_factory=dict)
+    """Per-frame values (each an (N,) array) that each :class:`Frame` carries in its ``metadata``
+    (e.g. nuScenes' vehicle and camera headings)."""
 
     def __post_init__(self) -> None:
-        n = len(self.files)
-        for label, array in (("positions", self.positions), ("timestamps", self.timestamps), ("geo", self.geo)):
+        if isinstance(self.images, list):
+            self.images = ImageFiles(self.images)
+        n = len(self)
+        arrays = {"positions": self.positions, "timestamps": self.timestamps, "geo": self.geo, **self.metadata}
+        for label, array in arrays.items():
             if array is not None and len(array) != n:
                 raise InputError(f"{self.name}: {len(array)} {label} for {n} images")
 
     def __len__(self) -> int:
-        return len(self.files)
+        return len(self.source_indices) if self.source_indices is not None else len(self.images)
+
+    @property
+    def rows(self) -> np.ndarray:
+        """The recording's row of each frame, in this traverse's order."""
+        return self.source_indices if self.source_indices is not None else np.arange(len(self.images))
 
     @property
     def root(self) -> Path:
-        return self.files[0].parent
+        """The folder or recording file the frames come from."""
+        return self.images.origin
+
+    @property
+    def names(self) -> list[str]:
+        return [self.images.name(int(row)) for row in self.rows]
+
+    @property
+    def files(self) -> list[Path]:
+        """The image file of each frame, for traverses stored one file per frame."""
+        if not isinstance(self.images, ImageFiles):
+            raise InputError(f"{self.name}: the frames are inside {self.root}, not one file each")
+        return [self.images.files[int(row)] for row in self.rows]
+
+    def fingerprint(self) -> list:
+        """JSON-able identity of the frames shown (recording, choice and order of frames, mirroring)."""
+        return [self.images.fingerprint(self.rows), self.mirror]
+
+    def _flip(self, image: np.ndarray) -> np.ndarray:
+        return np.ascontiguousarray(image[:, ::-1]) if self.mirror else image
 
     def image(self, index: int) -> np.ndarray:
-        image = (self.loader or read_image)(self.files[index])
-        if self.mirror:
-            image = np.ascontiguousarray(image[:, ::-1])
-        return image
+        return self._flip(self.images.read(int(self.rows[index])))
 
-    def frame(self, index: int) -> Frame:
+    def _frame(self, index: int, image: np.ndarray) -> Frame:
         position = tuple(float(v) for v in self.positions[index]) if self.positions is not None else None
         return Frame(
             id=index,
-            image=self.image(index),
+            image=image,
             timestamp=float(self.timestamps[index]) if self.timestamps is not None else None,
             camera=self.camera,
             position=position,  # type: ignore[arg-type]
-            name=self.files[index].name,
+            name=self.images.name(int(self.rows[index])),
+            metadata={key: values[index].item() for key, values in self.metadata.items()},
         )
 
+    def frame(self, index: int) -> Frame:
+        return self._frame(index, self.image(index))
+
     def __iter__(self) -> Iterator[Frame]:
-        for index in range(len(self.files)):
-            yield self.frame(index)
+        for index, image in enumerate(self.images.read_rows(self.rows)):
+            yield self._frame(index, self._flip(image))
 
     def subset(self, indices: Sequence[int] | np.ndarray, note: str | None = None) -> "Traverse":
         """The frames at ``indices`` (in that order), remembering where each came from."""
@@ -86,29 +115,30 @@ class Traverse:
             raise InputError(f"{self.name}: frame indices out of range 0..{len(self) - 1}")
         if len(idx) == 0:
             raise InputError(f"{self.name}: a subset needs at least one frame")
-        original = self.source_indices[idx] if self.source_indices is not None else idx
         return replace(
             self,
-            files=[self.files[i] for i in idx],
             positions=self.positions[idx] if self.positions is not None else None,
             timestamps=self.timestamps[idx] if self.timestamps is not None else None,
             geo=self.geo[idx] if self.geo is not None else None,
             notes=[*self.notes, *([note] if note else [])],
-            source_indices=original,
+            source_indices=self.rows[idx],
+            metadata={key: values[idx] for key, values in self.metadata.items()},
         )
-
 
     def reversed(self) -> "Traverse":
         """The frames in reverse order, as a vehicle driving the route the other way would meet them.
 
         Timestamps are reflected (t' = t_first + t_last - t) so that they still increase and
-        keep their spacing; positions travel with their frames.
+        keep their spacing; positions travel with their frames. A declared camera direction is
+        relative to the direction of travel, so it turns round too: a rear camera played backwards
+        looks where a front camera of the vehicle driving the other way looks.
         """
         order = np.arange(len(self) - 1, -1, -1)
         out = self.subset(order, note=f"{self.name}: frames in reverse order")
         if self.timestamps is not None:
             out.timestamps = self.timestamps[0] + self.timestamps[-1] - self.timestamps[order]
         out.name = f"{self.name} (reversed)"
+        out.camera = {"front": "rear", "rear": "front"}.get(self.camera) if self.camera else None  # type: ignore[assignment]
         return out
 
 
@@ -121,4 +151,4 @@ def folder_traverse(
     if positions is not None:
         table = read_positions(positions)
         coords, stamps, geo = align_positions(table, [f.name for f in files], Path(positions))
-    return Traverse(Path(images).name, files, coords, stamps, camera, mirror, geo=geo)
+    return Traverse(Path(images).name, ImageFiles(files), coords, stamps, camera, mirror, geo=geo)

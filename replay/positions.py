@@ -142,3 +142,38 @@ def align_positions(
     stamps = table.timestamps[order] if table.timestamps is not None else None
     geo = table.geo[order] if table.geo is not None else None
     return table.positions[order], stamps, geo
+
+
+def interpolate_positions(sample_times: np.ndarray, sample_values: np.ndarray, times: np.ndarray) -> np.ndarray:
+    """Linear interpolation of (N, 2) samples at ``times``; NaN outside the sampled time span."""
+    # Relative to the first sample: integer UNIX times in micro- or nanoseconds lose precision as float64.
+    t0 = sample_times[0]
+    st = (sample_times - t0).astype(np.float64)
+    tt = (np.asarray(times) - t0).astype(np.float64)
+    out = np.stack([np.interp(tt, st, sample_values[:, k]) for k in range(sample_values.shape[1])], axis=1)
+    out[(tt < st[0]) | (tt > st[-1])] = np.nan
+    return out
+
+
+@dataclass
+class Located:
+    """Positions interpolated at frame times (see :func:`locate`)."""
+
+    inside: np.ndarray
+    """(N,) bool: the frame time lies within the samples' time span (the others have no position)."""
+    positions: np.ndarray
+    """(M, 2) metres of the frames inside, M = inside.sum()."""
+    geo: np.ndarray | None
+    """(M, 2) latitude, longitude of the frames inside, when the samples were geographic."""
+
+
+def locate(sample_times: np.ndarray, sample_values: np.ndarray, geographic: bool, times: np.ndarray) -> Located:
+    """Positions at ``times`` from time-stamped samples (metres, or latitude/longitude projected to
+    metres about the first frame's), for the frames within the samples' time span."""
+    at = interpolate_positions(sample_times, sample_values, times)
+    inside = np.isfinite(at).all(axis=1)
+    at = at[inside]
+    if not geographic:
+        return Located(inside, at, None)
+    origin = (float(at[0, 0]), float(at[0, 1])) if len(at) else (0.0, 0.0)
+    return Located(inside, latlon_to_local(at[:, 0], at[:, 1], origin), at)

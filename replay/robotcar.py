@@ -38,7 +38,8 @@ from lostx.core.frame import Camera
 from lostx.core.images import decode_file
 
 from .folder import Traverse
-from .positions import latlon_to_local
+from .positions import locate
+from .store import ImageFiles
 
 # camera -> (image folder, timestamps file, Bayer pattern named from the top-left 2x2 block, row by row)
 CAMERAS: dict[str, tuple[str, str, str]] = {
@@ -155,17 +156,6 @@ def read_ins(path: Path) -> tuple[np.ndarray, np.ndarray, bool]:
     return np.asarray(stamps, dtype=np.int64), np.asarray(values, dtype=np.float64), geographic
 
 
-def interpolate_positions(sample_times: np.ndarray, sample_values: np.ndarray, times: np.ndarray) -> np.ndarray:
-    """Linear interpolation of (N, 2) samples at ``times``; NaN outside the sampled time span."""
-    # Relative to the first sample: microsecond UNIX times (~1.4e15) lose precision as float64 fractions.
-    t0 = sample_times[0]
-    st = (sample_times - t0).astype(np.float64)
-    tt = (np.asarray(times) - t0).astype(np.float64)
-    out = np.stack([np.interp(tt, st, sample_values[:, k]) for k in range(sample_values.shape[1])], axis=1)
-    out[(tt < st[0]) | (tt > st[-1])] = np.nan
-    return out
-
-
 def robotcar_traverse(
     root: str | Path, camera: Camera = "front", ins: str | Path | None = None, mirror: bool = False
 ) -> Traverse:
@@ -207,8 +197,8 @@ def robotcar_traverse(
     ins_path = Path(ins) if ins is not None else next((root / f for f in INS_FILES if (root / f).is_file()), None)
     if ins_path is not None:
         ins_times, ins_values, geographic = read_ins(ins_path)
-        at = interpolate_positions(ins_times, ins_values, times)
-        inside = np.isfinite(at).all(axis=1)
+        located = locate(ins_times, ins_values, geographic, times)
+        inside = located.inside
         if not inside.any():
             raise InputError(
                 f"{ins_path}: covers {ins_times[0]}..{ins_times[-1]} us, none of the {len(times)} images of "
@@ -217,23 +207,18 @@ def robotcar_traverse(
         if not inside.all():
             notes.append(f"{int((~inside).sum())} images outside the time span of {ins_path.name}: dropped")
             files = [f for f, ok in zip(files, inside) if ok]
-            times, at = times[inside], at[inside]
-        if geographic:
-            geo = at
-            positions = latlon_to_local(at[:, 0], at[:, 1], (float(at[0, 0]), float(at[0, 1])))
-        else:
-            positions = at
+            times = times[inside]
+        positions, geo = located.positions, located.geo
     else:
         notes.append(f"no {' or '.join(INS_FILES)}: no positions")
 
     return Traverse(
         name=f"{root.name}/{folder}",
-        files=files,
+        images=ImageFiles(files, partial(load_bayer_image, pattern=pattern)),
         positions=positions,
         timestamps=times.astype(np.float64) / 1e6,
         camera=camera,
         mirror=mirror,
-        loader=partial(load_bayer_image, pattern=pattern),
         geo=geo,
         notes=notes,
     )

@@ -16,6 +16,7 @@ from lostx.core.frame import Camera
 from lostx.core.images import list_images
 
 from .folder import Traverse
+from .store import ImageFiles
 
 GROUND_TRUTH = "ground_truth_new.npy"
 
@@ -32,4 +33,5 @@ def vprbench_traverse(folder: Path, camera: Camera | None = None, mirror: bool =
         files.sort(key=lambda f: int(f.stem))
     else:
         notes.append(f"{folder}: file stems are not all integers; images taken in name order")
-    return Traverse(folder.parent.name + "/" + folder.name, files, camera=camera, mirror=mirror, notes=notes)
+    return Traverse(folder.parent.name + "/" + folder.name, ImageFiles(files), camera=camera, mirror=mirror,
+                    notes=notes)

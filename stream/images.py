@@ -4,14 +4,21 @@ A compressed image is a decompression bomb waiting to happen: a 100-byte PNG can
 declare 100000 x 100000 pixels. So the width and height are read from the
 header (PNG IHDR, JPEG SOF) and checked against the pixel limit *before* the
 decoder allocates anything.
+
+Pillow decodes what arrives: OpenCV's libpng and libjpeg print a line to the
+process's stderr for every corrupt image, which would let any peer flood the
+service's log; Pillow reports the same failures as exceptions and prints nothing.
+OpenCV still encodes (the producer's side, where the images are its own).
 """
 
 from __future__ import annotations
 
+import io
 import struct
 
 import cv2
 import numpy as np
+from PIL import Image
 
 from .errors import ProtocolError
 
@@ -113,12 +120,31 @@ def decode_image(data: bytes, encoding: str, shape: tuple[int, ...] | None) -> n
             image = np.repeat(image[:, :, None], 3, axis=2)
         # A copy: frombuffer gives a read-only view of the message, and the localizer owns its frame.
         return image.copy()
-    decoded = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_COLOR)
-    if decoded is None:
-        raise ProtocolError("bad_image", f"image: the {encoding} data does not decode ({len(data)} bytes)")
-    image = np.ascontiguousarray(decoded[:, :, ::-1])
+    image = _decode_compressed(data, encoding)
     if shape is not None and tuple(image.shape[:2]) != tuple(shape[:2]):
         raise ProtocolError(
             "bad_image", f"image: decodes to {image.shape[1]}x{image.shape[0]}, the message says {shape[1]}x{shape[0]}"
         )
     return image
+
+
+_FORMATS = {"png": "PNG", "jpeg": "JPEG"}
+
+
+def _decode_compressed(data: bytes, encoding: str) -> np.ndarray:
+    try:
+        with Image.open(io.BytesIO(data), formats=(_FORMATS[encoding],)) as decoded:
+            decoded.load()
+            if decoded.mode.startswith("I"):
+                # 16-bit grey: keep the high byte, as 8-bit viewers do.
+                grey = (np.asarray(decoded, dtype=np.uint32) >> 8).astype(np.uint8)
+                return np.repeat(grey[:, :, None], 3, axis=2)
+            return np.array(decoded.convert("RGB"))
+    except (OSError, ValueError, SyntaxError, Image.DecompressionBombError) as exc:
+        raise ProtocolError("bad_image", f"image: the {encoding} data does not decode ({len(data)} bytes: "
+                            f"{_reason(exc)})") from None
+
+
+def _reason(exc: BaseException) -> str:
+    text = str(exc) or type(exc).__name__
+    return text if len(text) < 100 else text[:97] + "..."

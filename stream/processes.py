@@ -36,8 +36,11 @@ def exit_with_parent(interval: float = 0.5) -> None:
 
 
 def lostx_command(*args: str) -> list[str]:
-    """argv that runs ``lostx ARGS`` with this interpreter (no dependence on PATH)."""
-    return [sys.executable, "-m", "lostx.cli", *args]
+    """argv that runs ``lostx ARGS`` with this interpreter (no dependence on PATH).
+
+    ``-P`` keeps the working directory off ``sys.path``: run from the folder that holds a clone
+    named ``lostx``, the clone would otherwise shadow the installed package."""
+    return [sys.executable, "-P", "-m", "lostx.cli", *args]
 
 
 class ProcessGroup:

@@ -6,6 +6,8 @@ Two channels, both bound by the service:
   in; ``ready``, ``ack`` and ``error`` back to the producer that sent them.
 * results (XPUB at the service, SUB at each listener): two-part messages
   ``[topic, payload]`` with topic ``result``, ``error`` or ``stats``.
+* history (ROUTER at the service, DEALER at a listener; with a journal): ``fetch``
+  in, ``history`` (journaled answers) or ``error`` back.
 
 Every payload is one msgpack map with ``v`` (schema version) and ``type``.
 Decoding never trusts the peer: the size is checked before msgpack sees the
@@ -50,12 +52,17 @@ ERROR_CODES: dict[str, str] = {
     "image_too_large": "the image declares more pixels than the limit",
     "bad_image": "the image bytes do not decode, or do not match the declared shape",
     "localizer_failed": "the localizer could not answer this frame",
+    "bad_timestamp": "the timestamp goes back in its stream, or jumps further ahead than max_time_jump",
+    "too_many_streams": "the frame starts a stream while max_streams streams are live",
+    "journal_failed": "the journal could not be read",
 }
 
 MAX_NAME = 256
 """Characters in short strings: stream, name, camera, encoding, codes."""
 MAX_METADATA_DEPTH = 4
 """Nesting of maps and arrays inside ``metadata``."""
+MAX_FETCH = 1024
+"""Most answers a ``fetch`` may ask for at once."""
 
 
 @dataclass(frozen=True)
@@ -134,6 +141,21 @@ class Ack:
 
 
 @dataclass(frozen=True)
+class Tag:
+    """Where an answer stands in the service's sequence of answers (results and frame errors)."""
+
+    stream: str
+    """The stream of the answered frame (``""`` for a frame that named none)."""
+    seq: int
+    """Number of the answer among all the service's answers, from 1; with a journal it goes on
+    across restarts of the service, and listeners resume from it."""
+    stream_seq: int
+    """Number of the answer within its stream's state, from 1."""
+    journal: str | None = None
+    """Id of the journal that holds the answer; None without one."""
+
+
+@dataclass(frozen=True)
 class ErrorMessage:
     """Service -> producer and listeners: a message was refused, or a frame could not be answered."""
 
@@ -141,6 +163,8 @@ class ErrorMessage:
     text: str
     frame_id: int | None = None
     session: str | None = None
+    tag: Tag | None = None
+    """Where an error that answers an accepted frame stands among the answers; None for refusals."""
 
 
 @dataclass(frozen=True)
@@ -172,6 +196,7 @@ class Result:
     heading: str
     heading_confidence: float
     latency_ms: dict[str, float]
+    tag: Tag
     session: str = ""
 
     @property
@@ -179,11 +204,39 @@ class Result:
         return self.state == "localized"
 
     def to_dict(self) -> dict[str, Any]:
-        """Plain types, the same keys as :meth:`Estimate.summary` (plus ``session``)."""
+        """Plain types, the keys of :meth:`Estimate.summary` plus ``session`` and the tag's fields."""
         data = asdict(self)
         data["position"] = None if self.position is None else list(self.position)
         data["candidates"] = [asdict(c) for c in self.candidates]
+        data.update(data.pop("tag"))
         return data
+
+
+@dataclass(frozen=True)
+class JournalInfo:
+    """What the service's journal holds: answers ``first`` to ``last`` (0, 0 when empty)."""
+
+    id: str
+    first: int
+    last: int
+    bytes: int
+    segments: int
+
+
+@dataclass(frozen=True)
+class StreamStats:
+    received: int
+    answered: int
+    errors: int
+    dropped: int
+    missing: int
+    duplicates: int
+    restarts: int
+    """New traverses started because the stream's clock jumped back by more than max_time_jump."""
+    queued: int
+    """Frames taken and not yet answered."""
+    idle_s: float
+    """Seconds since the stream's last frame."""
 
 
 @dataclass(frozen=True)
@@ -212,12 +265,39 @@ class Stats:
     producers: int
     latency_ms: dict[str, dict[str, float]]
     """``step``: the localizer; ``service``: frame read -> result handed to the socket.
-    Each ``{"n", "p50", "p90", "p99", "max"}`` over the last frames."""
+    Each ``{"n", "p50", "p90", "p99", "max"}`` over the last frames (``n`` a count)."""
     final: bool = False
+    seq: int = 0
+    """The last answer handed to the results socket (0 before any)."""
+    journal: JournalInfo | None = None
+    streams: dict[str, StreamStats] = field(default_factory=dict)
+    """Per stream with a state on the service."""
+
+
+@dataclass(frozen=True)
+class Fetch:
+    """Listener -> service (history channel): the journaled answers after ``after``."""
+
+    after: int
+    max: int = 256
+
+
+@dataclass(frozen=True)
+class History:
+    """Service -> listener: journaled answers ``after + 1`` on (each a results-channel payload),
+    and the journal's range. ``first`` above ``after + 1`` means older answers were rotated out."""
+
+    session: str
+    journal: str
+    after: int
+    first: int
+    last: int
+    items: tuple[bytes, ...]
 
 
 Reply = Ready | Ack | ErrorMessage
 Published = Result | ErrorMessage | Stats
+Answer = Result | ErrorMessage
 
 
 # ---------------------------------------------------------------------------------------------
@@ -278,16 +358,33 @@ def encode_error(error: ErrorMessage) -> bytes:
     message: dict[str, Any] = {"type": "error", "frame_id": error.frame_id, "code": error.code, "text": error.text}
     if error.session is not None:
         message["session"] = error.session
+    if error.tag is not None:
+        message.update(_tag_fields(error.tag))
     return _pack(message)
 
 
-def encode_result(summary: Mapping[str, Any], session: str) -> bytes:
+def encode_result(summary: Mapping[str, Any], session: str, tag: Tag) -> bytes:
     """A result message from :meth:`Estimate.summary` (already plain types)."""
-    return _pack({"type": "result", "session": session, **summary})
+    return _pack({"type": "result", "session": session, **summary, **_tag_fields(tag)})
+
+
+def _tag_fields(tag: Tag) -> dict[str, Any]:
+    fields: dict[str, Any] = {"stream": tag.stream, "seq": tag.seq, "stream_seq": tag.stream_seq}
+    if tag.journal is not None:
+        fields["journal"] = tag.journal
+    return fields
 
 
 def encode_stats(stats: Stats) -> bytes:
     return _pack({"type": "stats", **asdict(stats)})
+
+
+def encode_fetch(fetch: Fetch) -> bytes:
+    return _pack({"type": "fetch", "after": fetch.after, "max": fetch.max})
+
+
+def encode_history(history: History) -> bytes:
+    return _pack({"type": "history", **asdict(history), "items": list(history.items)})
 
 
 # ---------------------------------------------------------------------------------------------
@@ -373,6 +470,41 @@ def decode_published(topic: bytes, data: bytes, limits: Limits) -> Published:
     return _decode_stats(message)
 
 
+def decode_answer(data: bytes, limits: Limits) -> Answer:
+    """One journaled answer (an item of a ``history`` reply): a result or a frame's error."""
+    message = unpack(data, limits)
+    if _envelope(message, ("result", "error")) == "result":
+        return _decode_result(message)
+    error = _decode_error(message, strict=False)
+    if error.tag is None:
+        raise ProtocolError("missing_field", "a journaled error needs its stream, seq and stream_seq")
+    return error
+
+
+def decode_fetch(data: bytes | memoryview, limits: Limits) -> Fetch:
+    """A history-channel request, as the service reads it."""
+    message = unpack(data, limits)
+    _envelope(message, ("fetch",))
+    f = _Fields(message, _FETCH)
+    count = f.value("max", 256)
+    if not 1 <= count <= MAX_FETCH:
+        raise ProtocolError("bad_value", f"max is {count}; ask for 1 to {MAX_FETCH} answers")
+    return Fetch(f.value("after"), count)
+
+
+def decode_history(data: bytes, limits: Limits) -> History | ErrorMessage:
+    """A history-channel reply, as a listener reads it."""
+    message = unpack(data, limits)
+    if _envelope(message, ("history", "error")) == "error":
+        return _decode_error(message, strict=False)
+    f = _Fields(message, _HISTORY, strict=False)
+    items = f.value("items")
+    if not all(isinstance(item, bytes) for item in items):
+        raise ProtocolError("bad_type", "history items must be bin")
+    return History(f.value("session"), f.value("journal"), f.value("after"), f.value("first"), f.value("last"),
+                   tuple(items))
+
+
 def _envelope(message: Mapping[str, Any], types: tuple[str, ...]) -> str:
     if "v" not in message:
         raise ProtocolError("missing_field", "no schema version v")
@@ -442,9 +574,11 @@ _READY: Schema = {
     "window": (_UINT, True), "max_message_bytes": (_UINT, True), "max_pixels": (_UINT, True),
 }
 _ACK: Schema = {"v": (_INT, True), "type": (_STR, True), "session": (_STR, True), "frame_id": (_UINT, True)}
+_TAG: Schema = {"stream": (_STR, True), "seq": (_UINT, True), "stream_seq": (_UINT, True), "journal": (_STR, False)}
 _ERROR: Schema = {
     "v": (_INT, True), "type": (_STR, True), "frame_id": (_UINT.or_nil(), True),
     "code": (_STR, True), "text": (_STR, True), "session": (_STR, False),
+    **{name: (kind, False) for name, (kind, _) in _TAG.items()},
 }
 _RESULT: Schema = {
     "v": (_INT, True), "type": (_STR, True), "session": (_STR, False),
@@ -455,7 +589,7 @@ _RESULT: Schema = {
     "sequence_score": (_NUMBER.or_nil(), True), "speed": (_NUMBER.or_nil(), True),
     "window": (_UINT, True), "warming_up": (_BOOL, True),
     "heading": (_STR, True), "heading_confidence": (_NUMBER, True),
-    "latency_ms": (_MAP, True),
+    "latency_ms": (_MAP, True), **_TAG,
 }
 _CANDIDATE: Schema = {
     "index": (_UINT, True), "distance": (_NUMBER.or_nil(), True), "score": (_NUMBER.or_nil(), True),
@@ -468,7 +602,19 @@ _STATS: Schema = {
     "errors": (_UINT, True),
     "errors_by_code": (_MAP, True), "queued_frames": (_UINT, True), "queued_results": (_UINT, True),
     "listeners": (_UINT, True), "producers": (_UINT, True), "latency_ms": (_MAP, True),
-    "final": (_BOOL, False),
+    "final": (_BOOL, False), "seq": (_UINT, True), "journal": (_MAP.or_nil(), True), "streams": (_MAP, True),
+}
+_JOURNAL: Schema = {"id": (_STR, True), "first": (_UINT, True), "last": (_UINT, True), "bytes": (_UINT, True),
+                    "segments": (_UINT, True)}
+_STREAM_STATS: Schema = {
+    **{name: (_UINT, True) for name in ("received", "answered", "errors", "dropped", "missing", "duplicates",
+                                        "restarts", "queued")},
+    "idle_s": (_NUMBER, True),
+}
+_FETCH: Schema = {"v": (_INT, True), "type": (_STR, True), "after": (_UINT, True), "max": (_UINT, False)}
+_HISTORY: Schema = {
+    "v": (_INT, True), "type": (_STR, True), "session": (_STR, True), "journal": (_STR, True),
+    "after": (_UINT, True), "first": (_UINT, True), "last": (_UINT, True), "items": (_ARRAY, True),
 }
 
 
@@ -587,8 +733,16 @@ def _check_metadata(value: Any, depth: int = 0) -> None:
 
 def _decode_error(message: Mapping[str, Any], strict: bool = True) -> ErrorMessage:
     f = _Fields(message, _ERROR, strict=strict)
+    tag = _decode_tag(f) if "seq" in message else None
     return ErrorMessage(code=f.value("code")[:MAX_NAME], text=f.value("text"), frame_id=f.value("frame_id"),
-                        session=f.value("session"))
+                        session=f.value("session"), tag=tag)
+
+
+def _decode_tag(f: _Fields) -> Tag:
+    for name, (_, required) in _TAG.items():
+        if required and name not in f.message:
+            raise ProtocolError("missing_field", f"required field {name!r} is missing")
+    return Tag(f.value("stream"), f.value("seq"), f.value("stream_seq"), f.value("journal"))
 
 
 def _decode_result(message: Mapping[str, Any]) -> Result:
@@ -620,7 +774,7 @@ def _decode_result(message: Mapping[str, Any]) -> Result:
         sequence_score=_opt_float(f.value("sequence_score")), speed=_opt_float(f.value("speed")),
         window=f.value("window"), warming_up=f.value("warming_up"),
         heading=f.value("heading"), heading_confidence=float(f.value("heading_confidence")),
-        latency_ms={k: float(v) for k, v in latency.items()}, session=f.value("session", ""),
+        latency_ms={k: float(v) for k, v in latency.items()}, tag=_decode_tag(f), session=f.value("session", ""),
     )
 
 
@@ -633,14 +787,25 @@ def _decode_stats(message: Mapping[str, Any]) -> Stats:
     for name, values in f.value("latency_ms").items():
         if not isinstance(values, dict) or not all(isinstance(k, str) and _is_number(v) for k, v in values.items()):
             raise ProtocolError("bad_type", f"latency_ms.{name} must map statistics to numbers")
-        latency[name] = {k: float(v) for k, v in values.items()}
+        latency[name] = {k: int(v) if k == "n" else float(v) for k, v in values.items()}
+    journal = f.value("journal")
+    if journal is not None:
+        j = _Fields(journal, _JOURNAL, strict=False, where="journal: ")
+        journal = JournalInfo(j.value("id"), j.value("first"), j.value("last"), j.value("bytes"), j.value("segments"))
+    streams: dict[str, StreamStats] = {}
+    for name, values in f.value("streams").items():
+        if not isinstance(values, dict):
+            raise ProtocolError("bad_type", f"streams[{name[:MAX_NAME]!r}] must be a map")
+        s = _Fields(values, _STREAM_STATS, strict=False, where=f"streams[{name[:MAX_NAME]!r}]: ")
+        streams[name] = StreamStats(**{k: s.value(k) for k in _STREAM_STATS if k != "idle_s"},
+                                    idle_s=float(s.value("idle_s")))
     return Stats(
         session=f.value("session"), mode=f.value("mode"), uptime_s=float(f.value("uptime_s")),
         received=f.value("received"), answered=f.value("answered"), dropped=f.value("dropped"),
         missing=f.value("missing"), duplicates=f.value("duplicates"), errors=f.value("errors"), errors_by_code=dict(by_code),
         queued_frames=f.value("queued_frames"), queued_results=f.value("queued_results"),
         listeners=f.value("listeners"), producers=f.value("producers"), latency_ms=latency,
-        final=f.value("final", False),
+        final=f.value("final", False), seq=f.value("seq"), journal=journal, streams=streams,
     )
 
 

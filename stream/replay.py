@@ -1,4 +1,4 @@
-"""Replaying a traverse into the service: pacing (lostx.replay.pace) + a :class:`FramePublisher`."""
+"""Feeding the service from a recording (paced by lostx.replay.pace) or a live source, through a :class:`FramePublisher`."""
 
 from __future__ import annotations
 
@@ -6,10 +6,11 @@ import dataclasses
 
 import time
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import Callable, Iterable, Iterator, Protocol
 
 from tqdm import tqdm
 
+from lostx.core.frame import Frame
 from lostx.replay.pace import FrameSource, Pace, paced
 
 from .producer import FramePublisher, PublisherCounts
@@ -27,6 +28,8 @@ class ReplaySummary:
     errors: list[str] = field(default_factory=list)
     unanswered: int = 0
     interrupted: bool = False
+    stale: int = 0
+    """Live source: frames it dropped for newer ones while the publisher was busy."""
 
     def line(self) -> str:
         c = self.counts
@@ -39,6 +42,8 @@ class ReplaySummary:
                 parts.append(f"{self.unanswered} NOT answered")
         if c.dropped:
             parts.append(f"{c.dropped} dropped (service busy or absent)")
+        if self.stale:
+            parts.append(f"{self.stale} camera frames skipped for newer ones")
         if c.resent:
             parts.append(f"{c.resent} resent")
         if c.refused:
@@ -64,18 +69,55 @@ def replay(
     """Wait for the service (``wait`` seconds at most, None = forever), send every frame at the
     pace, and in lossless mode wait until all are answered (``flush_timeout``)."""
     ready = publisher.wait_ready(wait)
-    summary = ReplaySummary(mode=ready.mode)
+    items = ((item.lap, item.frame) for item in paced(frames, pace, loop=loop, should_stop=should_stop))
+    return _publish(items, publisher, ReplaySummary(mode=ready.mode), None if loop else len(frames), progress,
+                    flush_timeout)
+
+
+class LiveSource(Protocol):
+    """Frames as they happen (e.g. :class:`lostx.replay.camera.LiveCamera`), and how many it dropped."""
+
+    dropped: int
+
+    def __iter__(self) -> Iterator[Frame]: ...
+
+
+def relay_live(
+    camera: LiveSource,
+    publisher: FramePublisher,
+    *,
+    progress: bool = True,
+    wait: float | None = None,
+    flush_timeout: float | None = None,
+    should_stop: Callable[[], bool] | None = None,
+) -> ReplaySummary:
+    """Send a live source's frames as they come, each the newest when the publisher is free
+    (frames that arrive while it is busy are dropped by the source, not queued)."""
+    ready = publisher.wait_ready(wait)
+
+    def frames() -> Iterator[tuple[int, Frame]]:
+        for frame in camera:
+            if should_stop is not None and should_stop():
+                return
+            yield 0, frame
+
+    summary = _publish(frames(), publisher, ReplaySummary(mode=ready.mode), None, progress, flush_timeout)
+    summary.stale = camera.dropped
+    return summary
+
+
+def _publish(items: Iterable[tuple[int, Frame]], publisher: FramePublisher, summary: ReplaySummary,
+             total: int | None, progress: bool, flush_timeout: float | None) -> ReplaySummary:
     base_stream = publisher.stream
-    bar = tqdm(total=None if loop else len(frames), unit="frame", desc="replay", disable=not progress,
-               leave=False, dynamic_ncols=True)
+    bar = tqdm(total=total, unit="frame", desc="replay", disable=not progress, leave=False, dynamic_ncols=True)
     start = time.perf_counter()
     try:
-        for item in paced(frames, pace, loop=loop, should_stop=should_stop):
+        for lap, frame in items:
             # Each lap is a traverse of its own: a new stream, so the service starts it afresh.
-            publisher.stream = base_stream if item.lap == 0 else f"{base_stream}.{item.lap}"
-            summary.laps = item.lap + 1
+            publisher.stream = base_stream if lap == 0 else f"{base_stream}.{lap}"
+            summary.laps = lap + 1
             summary.frames += 1
-            publisher.send(item.frame)
+            publisher.send(frame)
             bar.update(1)
             if publisher.counts.dropped or publisher.counts.refused:
                 bar.set_postfix(dropped=publisher.counts.dropped, refused=publisher.counts.refused, refresh=False)

@@ -1,17 +1,28 @@
-"""The localizer service: frames in over ZeroMQ, a stateful Localizer, results out.
+"""The localizer service: frames in over ZeroMQ, one localizer state per stream, answers out.
 
 Two threads. The I/O loop (the thread that calls :meth:`LocalizerService.run`)
-owns both sockets: it reads every message as soon as it arrives, answers bad
-ones with an error at once, counts listeners, publishes answers and stats, and
-hands one frame at a time to the :class:`~lostx.stream.worker.Worker`, which
-owns the Localizer and the sinks.
+owns the sockets, the stream table and the journal: it reads every message as
+soon as it arrives, answers bad ones with an error at once, counts listeners,
+numbers, journals and publishes answers, serves the journal to listeners that
+are catching up, publishes stats, and hands one frame at a time to the
+:class:`~lostx.stream.worker.Worker`, which steps the localizer of that
+frame's stream and calls the sinks.
 
-``live`` mode keeps one slot: a newer frame replaces the one waiting there
-(counted as dropped), so a slow localizer always starts on the newest frame.
-``lossless`` mode keeps a FIFO and answers every frame in order; producers are
-held back by credit (docs/protocol.md), the FIFO is bounded, and answers wait
-for a slow listener (XPUB_NODROP) instead of being dropped, which pauses the
-worker and, through the credit, the producers.
+``live`` mode keeps one slot per stream: a newer frame of a stream replaces the
+one waiting there (counted as dropped), so a slow localizer always starts on a
+stream's newest frame, and the streams waiting take turns. ``lossless`` mode
+keeps a FIFO and answers every frame in order; producers are held back by
+credit (docs/protocol.md), the FIFO is bounded, and answers wait for a slow
+listener (XPUB_NODROP) instead of being dropped, which pauses the worker and,
+through the credit, the producers.
+
+Every answer (a result, or the error that answers a frame) gets the next
+sequence number. With a journal, an answer is written there and made durable
+(by the :class:`~lostx.stream.journal_writer.JournalWriter` thread, in
+batches) before its frame is acknowledged and before it is published, so a
+listener that missed answers (it was stopped, killed, or restarted, or the
+service was) fetches them from the history socket; the numbers go on across
+restarts of the service.
 
 :meth:`LocalizerService.stop` (from a signal handler or another thread) lets
 the worker finish the frame in hand, publishes its answer and the final stats,
@@ -29,6 +40,7 @@ from collections import Counter, deque
 from dataclasses import dataclass
 from typing import Any, Callable, Sequence
 
+import msgpack
 import zmq
 
 from lostx.core.config import StreamConfig
@@ -36,10 +48,15 @@ from lostx.core.localizer import Localizer
 
 from . import protocol as wire
 from .errors import ProtocolError, StreamError
-from .protocol import Ack, ErrorMessage, FrameMessage, Hello, Limits, Ready, Stats
+from .journal import Journal, JournalError
+from .journal_writer import JournalWriter
+from .protocol import Ack, ErrorMessage, FrameMessage, Hello, History, JournalInfo, Limits, Ready, Stats, Tag
 from .sinks import Sink, close_sink
-from .sockets import ServerKeys, apply_server_keys, bind, check_bind_endpoint, keep_alive, start_authenticator
+from .sockets import (
+    ServerKeys, apply_server_keys, bind, check_bind_endpoint, history_endpoint, keep_alive, start_authenticator,
+)
 from .stats import ServiceCounters
+from .streams import AnsweredIds, StreamTable, check_time
 from .worker import Answer, Job, Worker
 
 READ_BATCH = 10_000
@@ -48,10 +65,16 @@ POLL_MS = 100
 """Longest sleep in poll: how soon a stop request or a stats deadline is noticed."""
 RETRY_MS = 5
 """How often answers held back by a slow listener are offered to the results socket again."""
-RECENT_IDS = 1024
-"""Lossless: answered frame ids remembered per stream, to recognise a producer's resend."""
 PRODUCER_ACTIVE_S = 10.0
 """A producer counts as connected in stats while it sent something this recently."""
+JOURNAL_TAIL = 4096
+"""Answers read back from the journal at start, to recognise frames the previous service answered."""
+HISTORY_BYTES = 512 * 1024
+"""Most payload bytes in one history reply (listeners refuse messages over 1 MiB)."""
+HISTORY_LIMITS = Limits(max_message_bytes=4096)
+"""A fetch request is a few bytes."""
+MAX_STREAMS = 256
+"""Upper limit of max_streams: the per-stream stats must fit one message map."""
 
 
 @dataclass
@@ -63,33 +86,42 @@ class _Outgoing:
     reply_to: bytes
     reply: bytes | None
     received: float
+    seq: int
     key: tuple[str, int] | None = None
-    """(stream, frame id) of the answered frame, to recognise resends until it is out."""
+    """(stream, frame id) of an answer whose frame is acknowledged with this reply."""
 
 
 def check_config(config: StreamConfig) -> None:
-    for name in ("window", "queue", "max_message_bytes", "max_pixels", "frame_hwm", "result_hwm", "pending_results"):
+    for name in ("window", "queue", "max_message_bytes", "max_pixels", "frame_hwm", "result_hwm", "pending_results",
+                 "journal_segment_bytes", "max_streams"):
         if getattr(config, name) < 1:
             raise StreamError(f"stream setting {name} must be at least 1, got {getattr(config, name)}")
     if config.wait_listeners < 0:
         raise StreamError(f"stream setting wait_listeners must be 0 or more, got {config.wait_listeners}")
-    for name in ("stats_interval", "linger"):
+    for name in ("stats_interval", "linger", "stream_expiry", "max_time_jump"):
         if getattr(config, name) <= 0:
             raise StreamError(f"stream setting {name} must be positive, got {getattr(config, name)}")
     if config.queue < config.window:
         raise StreamError(f"stream setting queue ({config.queue}) must be at least window ({config.window})")
+    if config.max_streams > MAX_STREAMS:
+        raise StreamError(f"stream setting max_streams must be at most {MAX_STREAMS}, got {config.max_streams}")
+    if config.journal_max_bytes < config.journal_segment_bytes:
+        raise StreamError(f"stream setting journal_max_bytes ({config.journal_max_bytes}) must be at least "
+                          f"journal_segment_bytes ({config.journal_segment_bytes})")
 
 
 class LocalizerService:
-    """Serves one Localizer over ZeroMQ: ``with LocalizerService(localizer, config) as s: s.run()``.
+    """Serves localizers over ZeroMQ: ``with LocalizerService(new_localizer, config) as s: s.run()``.
 
-    ``sinks`` are called with ``(frame, estimate)`` after each answer is published.
-    ``keys`` turns CurveZMQ on; ``insecure`` allows a non-loopback bind without it.
+    ``new_localizer`` makes the localizer of each new stream (see
+    :func:`lostx.stream.streams.localizer_factory`). ``sinks`` are called with ``(frame, estimate)``
+    after each answer is published. ``keys`` turns CurveZMQ on; ``insecure`` allows a non-loopback
+    bind without it.
     """
 
     def __init__(
         self,
-        localizer: Localizer,
+        new_localizer: Callable[[], Localizer],
         config: StreamConfig | None = None,
         *,
         sinks: Sequence[Sink] = (),
@@ -97,7 +129,6 @@ class LocalizerService:
         insecure: bool = False,
         log: Callable[[str], None] | None = None,
     ) -> None:
-        self.localizer = localizer
         self.config = config or StreamConfig()
         check_config(self.config)
         self.sinks = list(sinks)
@@ -110,7 +141,12 @@ class LocalizerService:
         # Lossless never publishes answers into the void: it waits for at least one listener.
         self.min_listeners = max(self.config.wait_listeners, 1 if self.lossless else 0)
         self.counters = ServiceCounters()
+        self.streams = StreamTable(new_localizer, self.config.max_streams, self.config.stream_expiry)
+        self.journal: Journal | None = None
         self.endpoints: tuple[str, str] | None = None
+        """The frames and results endpoints as bound."""
+        self.history_endpoint: str | None = None
+        """The history endpoint as bound (with a journal)."""
 
         self._stop = threading.Event()
         self._stop_reason = ""
@@ -118,17 +154,25 @@ class LocalizerService:
         self._auth: Any = None
         self._frames: zmq.Socket | None = None
         self._results: zmq.Socket | None = None
+        self._history: zmq.Socket | None = None
         self._wake: zmq.Socket | None = None
+        self._journal_wake: zmq.Socket | None = None
         self._worker: Worker | None = None
+        self._writer: JournalWriter | None = None
         self._busy: Job | None = None  # the job the worker has in hand
-        self._slot: Job | None = None  # live: the newest frame not yet started
+        self._slots: dict[str, Job] = {}  # live: each stream's newest frame not yet started, in turn order
         self._queue: deque[Job] = deque()  # lossless: frames in order
         self._outgoing: deque[_Outgoing] = deque()
+        # Journaled answers' replies, sent once the answer is durable: (seq, producer, reply, frame key).
+        self._acks: deque[tuple[int, bytes, bytes, tuple[str, int] | None]] = deque()
+        self._durable = 0  # with a journal: the newest answer made durable
         self._subscriptions: Counter[bytes] = Counter()
         self._producers: dict[bytes, float] = {}
         self._waiting: set[bytes] = set()  # producers owed a ready
-        self._recent: dict[str, tuple[deque[int], set[int]]] = {}  # lossless: answered ids per stream
-        self._unpublished: set[tuple[str, int]] = set()  # lossless: taken, answer not yet out
+        self._answered = AnsweredIds()  # lossless: to recognise resent frames
+        self._unacked: set[tuple[str, int]] = set()  # lossless: taken, not yet acknowledged
+        self._next_seq = 1
+        self._published_seq = 0
         self._last_answered: int | None = None
         self._next_stats = 0.0
 
@@ -143,12 +187,17 @@ class LocalizerService:
         self.close()
 
     def bind(self) -> tuple[str, str]:
-        """Bind both sockets; returns the endpoints actually bound (``:0`` picks a free port)."""
+        """Open the journal and bind the sockets; returns the frames and results endpoints actually
+        bound (``:0`` picks a free port)."""
         cfg = self.config
-        for endpoint in (cfg.frames, cfg.results):
-            check_bind_endpoint(endpoint, secure=self.keys is not None, insecure_ok=self.insecure)
-        self._context = zmq.Context()
+        history = (cfg.history or history_endpoint(cfg.results)) if cfg.journal is not None else None
+        for endpoint in (cfg.frames, cfg.results, history):
+            if endpoint is not None:
+                check_bind_endpoint(endpoint, secure=self.keys is not None, insecure_ok=self.insecure)
         try:
+            if cfg.journal is not None:
+                self._open_journal()
+            self._context = zmq.Context()
             if self.keys is not None:
                 self._auth = start_authenticator(self._context, self.keys)
             frames = self._context.socket(zmq.ROUTER)
@@ -162,21 +211,47 @@ class LocalizerService:
             results.setsockopt(zmq.XPUB_VERBOSER, 1)  # every (un)subscription, to count listeners
             results.setsockopt(zmq.XPUB_NODROP, 1 if self.lossless else 0)
             results.setsockopt(zmq.MAXMSGSIZE, 4096)  # listeners only send short subscriptions
-            for socket in (frames, results):
+            sockets = [frames, results]
+            if history is not None:
+                self._history = self._context.socket(zmq.ROUTER)
+                self._history.setsockopt(zmq.MAXMSGSIZE, HISTORY_LIMITS.max_message_bytes)
+                self._history.setsockopt(zmq.SNDHWM, 100)
+                sockets.append(self._history)
+            for socket in sockets:
                 socket.setsockopt(zmq.LINGER, 0)
                 keep_alive(socket)  # a listener on a vanished host cannot hold the service forever
                 if self.keys is not None:
                     apply_server_keys(socket, self.keys)
             self._frames, self._results = frames, results
             self.endpoints = (bind(frames, cfg.frames), bind(results, cfg.results))
+            if self._history is not None and history is not None:
+                self.history_endpoint = bind(self._history, history)
             wake_endpoint = f"inproc://lostx-wake-{self.session}"
             self._wake = self._context.socket(zmq.PAIR)
             self._wake.bind(wake_endpoint)
-            self._worker = Worker(self.localizer, self.sinks, self._context, wake_endpoint, self.log)
+            self._worker = Worker(self.sinks, self._context, wake_endpoint, self.log)
+            if self.journal is not None:
+                journal_endpoint = f"inproc://lostx-journal-{self.session}"
+                self._journal_wake = self._context.socket(zmq.PAIR)
+                self._journal_wake.bind(journal_endpoint)
+                self._writer = JournalWriter(self.journal, self._context, journal_endpoint)
         except BaseException:
             self.close()
             raise
         return self.endpoints
+
+    def _open_journal(self) -> None:
+        cfg = self.config
+        assert cfg.journal is not None
+        self.journal = Journal(cfg.journal, segment_bytes=cfg.journal_segment_bytes,
+                               max_bytes=cfg.journal_max_bytes, fsync=cfg.journal_fsync)
+        self._next_seq = self.journal.last + 1
+        self._durable = self.journal.committed
+        # Frames the previous service answered but whose acks it never sent come again: know them.
+        for payload in self.journal.tail(JOURNAL_TAIL):
+            key = _journaled_key(payload)
+            if key is not None:
+                self._answered.add(key)
 
     def stop(self, reason: str = "stop requested") -> None:
         """Finish the frame in hand, flush, and return from :meth:`run`. Safe in signal handlers."""
@@ -184,21 +259,26 @@ class LocalizerService:
         self._stop.set()
 
     def close(self, linger_ms: int = 0) -> None:
-        """Close the sockets; ZeroMQ keeps sending what it already holds for ``linger_ms``."""
+        """Close the sockets and the journal; ZeroMQ keeps sending what it already holds for ``linger_ms``."""
         worker, self._worker = self._worker, None
         if worker is not None and worker.is_alive():
             worker.jobs.put(None)
             worker.join(10)
-        for socket in (self._results, self._frames, self._wake):
+        writer, self._writer = self._writer, None
+        if writer is not None:
+            writer.close()
+        for socket in (self._results, self._frames, self._history, self._wake, self._journal_wake):
             if socket is not None:
                 socket.close(linger=linger_ms)
-        self._frames = self._results = self._wake = None
+        self._frames = self._results = self._history = self._wake = self._journal_wake = None
         if self._auth is not None:
             self._auth.stop()
             self._auth = None
         if self._context is not None:
             self._context.term()
             self._context = None
+        if self.journal is not None:
+            self.journal.close()
 
     # -- the I/O loop --------------------------------------------------------------------------
 
@@ -206,11 +286,17 @@ class LocalizerService:
         """Serve until :meth:`stop`; returns the final stats (also published)."""
         if self.endpoints is None:
             self.bind()
-        assert self._worker is not None
+        assert self._worker is not None and self.endpoints is not None
         cfg = self.config
+        journal = ""
+        if self.journal is not None:
+            held = f"answers {self.journal.first}-{self.journal.last}" if self.journal.last else "empty"
+            journal = f"; journal {cfg.journal} ({held}), history {self.history_endpoint} (ROUTER)"
         self.log(f"{cfg.mode} mode, session {self.session}; frames {self.endpoints[0]} (ROUTER), "
-                 f"results {self.endpoints[1]} (XPUB)" + ("; CurveZMQ on" if self.keys else ""))
+                 f"results {self.endpoints[1]} (XPUB){journal}" + ("; CurveZMQ on" if self.keys else ""))
         self._worker.start()
+        if self._writer is not None:
+            self._writer.start()
         try:
             while not self._stop.is_set():
                 self._turn()
@@ -223,7 +309,7 @@ class LocalizerService:
         return final
 
     def _turn(self, dispatch: bool = True) -> None:
-        """One turn of the loop: wait for something, then read, publish, dispatch."""
+        """One turn of the loop: wait for something, then read, answer, dispatch, commit, publish."""
         assert self._frames is not None and self._results is not None and self._wake is not None
         poller = zmq.Poller()
         read_frames = not self.lossless or len(self._queue) < self.config.queue
@@ -231,20 +317,28 @@ class LocalizerService:
             poller.register(self._frames, zmq.POLLIN)
         poller.register(self._results, zmq.POLLIN)
         poller.register(self._wake, zmq.POLLIN)
+        if self._history is not None:
+            poller.register(self._history, zmq.POLLIN)
+        if self._journal_wake is not None:
+            poller.register(self._journal_wake, zmq.POLLIN)
         events = dict(poller.poll(self._sleep_ms()))
+        if self._journal_wake is not None and events.get(self._journal_wake):
+            self._collect_durable()
         if events.get(self._wake):
             self._collect_answers()
         if read_frames and events.get(self._frames, 0) & zmq.POLLIN:
             self._read_frames()
         if events.get(self._results, 0) & zmq.POLLIN:
             self._read_subscriptions()
-        self._flush()
         if self._waiting and self._listeners() >= self.min_listeners:
             for identity in self._waiting:
                 self._reply(identity, wire.encode_ready(self._ready()))
             self._waiting.clear()
         if dispatch:
             self._dispatch()
+        self._release()
+        if self._history is not None and events.get(self._history, 0) & zmq.POLLIN:
+            self._serve_history()
         self._maybe_stats()
 
     def _sleep_ms(self) -> int:
@@ -260,28 +354,58 @@ class LocalizerService:
         assert self._worker is not None
         if self._busy is not None or self._listeners() < self.min_listeners:
             return
-        if self.lossless:
-            if len(self._outgoing) >= self.config.pending_results:
-                return  # a listener is slow: wait for it rather than drop answers
-            while self._queue:
-                job = self._queue.popleft()
-                if not self._answered_before(job.message):
-                    break
-                # A producer resent, after a reconnection, a frame this session already has: answer
-                # it once. If that answer is out, its ack may have been lost: acknowledge again;
-                # if not, the ack goes with the answer.
-                self.counters.duplicates += 1
-                if _key(job.message) not in self._unpublished:
-                    self._reply(job.identity, wire.encode_ack(Ack(self.session, job.message.id)))
-            else:
+        if len(self._outgoing) >= self.config.pending_results:
+            return  # a listener (lossless) or the disk (with a journal) is slow: wait for it, drop nothing
+        while True:
+            job = self._next_job()
+            if job is None:
                 return
-            self._remember(job.message)
-        else:
-            if self._slot is None:
-                return
-            job, self._slot = self._slot, None
+            if self._admit_time(job):
+                break
         self._busy = job
         self._worker.jobs.put(job)
+
+    def _next_job(self) -> Job | None:
+        """Lossless: the oldest frame not answered before; live: the newest frame of the next stream."""
+        if not self.lossless:
+            if not self._slots:
+                return None
+            return self._slots.pop(next(iter(self._slots)))
+        while self._queue:
+            job = self._queue.popleft()
+            key = _key(job.message)
+            if key is None or key not in self._answered:
+                if key is not None:
+                    self._answered.add(key)
+                    self._unacked.add(key)
+                return job
+            # A producer resent, after a reconnection, a frame already answered (by this service, or by
+            # the one before it, as the journal shows): answer it once. If its ack may have been lost,
+            # acknowledge again; if the ack is still to come, it goes with the answer.
+            self.counters.duplicates += 1
+            job.stream.counts.duplicates += 1
+            job.stream.in_service -= 1
+            if key not in self._unacked:
+                self._reply(job.identity, wire.encode_ack(Ack(self.session, job.message.id)))
+        return None
+
+    def _admit_time(self, job: Job) -> bool:
+        """Check the frame's timestamp against its stream's; a refused frame is answered with the error."""
+        state, timestamp = job.stream, job.message.timestamp
+        try:
+            verdict = check_time(state.last_timestamp, timestamp, self.config.max_time_jump)
+        except ProtocolError as exc:
+            self._answer(Answer(job, code=exc.code, text=exc.text))
+            return False
+        if verdict == "restart":
+            job.restart = True
+            state.counts.restarts += 1
+            if state.counts.restarts == 1:  # then only counted: a peer cannot flood the log
+                self.log(f"stream {state.name!r}: frame {job.message.id} is stamped {timestamp:.17g}, more than "
+                         f"max_time_jump before the previous frame; starting a new traverse")
+        if timestamp is not None:
+            state.last_timestamp = timestamp
+        return True
 
     def _collect_answers(self) -> None:
         assert self._wake is not None and self._worker is not None
@@ -298,25 +422,67 @@ class LocalizerService:
             if answer is None:
                 self._busy = None  # idle again (its sinks are done)
             else:
-                self._publish_answer(answer)
+                self._answer(answer)
 
-    def _publish_answer(self, answer: Answer) -> None:
-        job = answer.job
+    def _answer(self, answer: Answer) -> None:
+        """Number the answer, journal it, and queue it for the listeners and the producer."""
+        job, state = answer.job, answer.job.stream
+        state.in_service -= 1
         self._last_answered = job.message.id
+        seq = self._next_seq
+        self._next_seq += 1
+        state.answers += 1
+        tag = Tag(state.name, seq, state.answers, self.journal.id if self.journal is not None else None)
         if answer.estimate is not None:
             self.counters.answered += 1
+            state.counts.answered += 1
             self.counters.step_ms.add(answer.estimate.latency_ms.get("total", 0.0))
-            payload = wire.encode_result(answer.estimate.summary(), self.session)
+            topic, payload = b"result", wire.encode_result(answer.estimate.summary(), self.session, tag)
             reply = wire.encode_ack(Ack(self.session, job.message.id)) if self.lossless else None
-            self._outgoing.append(_Outgoing(b"result", payload, job.identity, reply, job.received,
-                                            _key(job.message)))
         else:
             # A frame that was accepted but cannot be answered: its answer is this error, in order.
             # The sender hears of it in both modes; in lossless mode it also returns the credit.
             self.counters.errors[answer.code] += 1
-            error = wire.encode_error(ErrorMessage(answer.code, answer.text, job.message.id, self.session))
-            self._outgoing.append(_Outgoing(b"error", error, job.identity, error, job.received,
-                                            _key(job.message)))
+            state.counts.errors += 1
+            topic = b"error"
+            payload = reply = wire.encode_error(ErrorMessage(answer.code, answer.text, job.message.id, self.session,
+                                                             tag))
+        key = _key(job.message) if self.lossless else None
+        if self._writer is not None:
+            # Journaled: acknowledged as soon as it is durable, whether or not a listener has it.
+            self._writer.write(seq, payload)
+            if reply is not None:
+                self._acks.append((seq, job.identity, reply, key))
+            reply, key = None, None
+        self._outgoing.append(_Outgoing(topic, payload, job.identity, reply, job.received, seq, key))
+
+    def _collect_durable(self) -> None:
+        assert self._journal_wake is not None and self._writer is not None
+        while True:
+            try:
+                self._journal_wake.recv(zmq.NOBLOCK)
+            except zmq.Again:
+                break
+        self._take_durable()
+
+    def _take_durable(self) -> None:
+        assert self._writer is not None
+        if self._writer.error is not None:
+            error = self._writer.error
+            text = error.strerror if isinstance(error, OSError) else str(error)
+            raise JournalError(f"cannot write the journal {self.config.journal}: {text}")
+        self._durable = self._writer.durable
+
+    def _is_durable(self, seq: int) -> bool:
+        return self._writer is None or seq <= self._durable
+
+    def _release(self) -> None:
+        """Acknowledge the frames whose answers are durable, then publish what may go out."""
+        while self._acks and self._is_durable(self._acks[0][0]):
+            _, identity, reply, key = self._acks.popleft()
+            self._reply(identity, reply)
+            if key is not None:
+                self._unacked.discard(key)
         self._flush()
 
     def _read_frames(self) -> None:
@@ -347,15 +513,25 @@ class LocalizerService:
             else:
                 self._waiting.add(identity)
             return
+        try:
+            state = self.streams.get(message.stream or "", now)
+        except ProtocolError as exc:
+            self._refuse(identity, exc.code, exc.text, message.id)
+            return
         self.counters.received += 1
-        self.counters.saw_frame(message.stream, message.id)
-        job = Job(identity, message, now)
+        state.counts.received += 1
+        self.counters.missing += state.saw(message.id)
+        state.in_service += 1
+        job = Job(identity, message, now, state)
         if self.lossless:
             self._queue.append(job)
-        else:
-            if self._slot is not None:
-                self.counters.dropped += 1
-            self._slot = job
+            return
+        superseded = self._slots.get(state.name)
+        if superseded is not None:
+            self.counters.dropped += 1
+            state.counts.dropped += 1
+            state.in_service -= 1
+        self._slots[state.name] = job  # a stream waiting already keeps its turn
 
     def _ready(self) -> Ready:
         window = self.config.window if self.lossless else 0
@@ -379,26 +555,32 @@ class LocalizerService:
         """Subscriptions that receive results (a topic that is a prefix of ``result``)."""
         return sum(n for topic, n in self._subscriptions.items() if b"result".startswith(topic))
 
-    def _answered_before(self, message: FrameMessage) -> bool:
-        if message.stream is None:
-            return False  # without a stream id a new run's frame 0 and a resent frame 0 look alike
-        recent = self._recent.get(message.stream)
-        return recent is not None and message.id in recent[1]
-
-    def _remember(self, message: FrameMessage) -> None:
-        """Keep the ids of the last frames answered per stream (a resend is at most a window old)."""
-        if message.stream is None:
-            return
-        if message.stream not in self._recent:
-            if len(self._recent) >= 64:
-                del self._recent[next(iter(self._recent))]
-            self._recent[message.stream] = (deque(), set())
-        order, ids = self._recent[message.stream]
-        order.append(message.id)
-        ids.add(message.id)
-        self._unpublished.add((message.stream, message.id))
-        if len(order) > RECENT_IDS:
-            ids.discard(order.popleft())
+    def _serve_history(self) -> None:
+        """Answer listeners' fetch requests from the journal (it serves only what is durable)."""
+        assert self._history is not None and self.journal is not None
+        for _ in range(100):
+            try:
+                parts = self._history.recv_multipart(zmq.NOBLOCK)
+            except zmq.Again:
+                return
+            identity, body = parts[0], parts[1:]
+            try:
+                if len(body) != 1:
+                    raise ProtocolError("multipart", f"expected one message part, got {len(body)}")
+                fetch = wire.decode_fetch(body[0], HISTORY_LIMITS)
+                items = self.journal.read(fetch.after, fetch.max, HISTORY_BYTES)
+                reply = wire.encode_history(History(self.session, self.journal.id, fetch.after, self.journal.first,
+                                                    self.journal.last, tuple(items)))
+            except ProtocolError as exc:
+                self.counters.errors[exc.code] += 1
+                reply = wire.encode_error(ErrorMessage(exc.code, exc.text, None, self.session))
+            except (JournalError, OSError) as exc:
+                self.counters.errors["journal_failed"] += 1
+                reply = wire.encode_error(ErrorMessage("journal_failed", str(exc), None, self.session))
+            try:
+                self._history.send_multipart([identity, reply], zmq.NOBLOCK)
+            except zmq.ZMQError:
+                pass  # the listener is gone or not reading; it asks again
 
     # -- sending -------------------------------------------------------------------------------
 
@@ -433,17 +615,18 @@ class LocalizerService:
     def _flush(self) -> None:
         """Hand queued answers to the results socket until it pushes back (lossless) or all are out."""
         assert self._results is not None
-        while self._outgoing:
+        while self._outgoing and self._is_durable(self._outgoing[0].seq):
             item = self._outgoing[0]
             try:
                 self._results.send_multipart([item.topic, item.payload], zmq.NOBLOCK)
             except zmq.Again:
                 return  # a listener is full (XPUB_NODROP): keep it; the worker pauses
             self._outgoing.popleft()
-            if item.key is not None:
-                self._unpublished.discard(item.key)
+            self._published_seq = item.seq
             if item.reply is not None:
                 self._reply(item.reply_to, item.reply)
+            if item.key is not None:
+                self._unacked.discard(item.key)
             self.counters.service_ms.add(1e3 * (time.monotonic() - item.received))
 
     # -- stats and shutdown --------------------------------------------------------------------
@@ -458,37 +641,51 @@ class LocalizerService:
         sink_failures = self._worker.sink_failures if self._worker is not None else 0
         if sink_failures:
             by_code["sink_failed"] = sink_failures  # counted, but no error message is sent for these
+        journal = None
+        if self.journal is not None:
+            j = self.journal
+            journal = JournalInfo(j.id, j.first, j.committed, j.nbytes, j.segments)
         return Stats(
             session=self.session, mode=self.config.mode, uptime_s=c.uptime, received=c.received,
             answered=c.answered, dropped=c.dropped, missing=c.missing, duplicates=c.duplicates,
             errors=sum(c.errors.values()), errors_by_code=by_code,
-            queued_frames=len(self._queue) + (self._slot is not None), queued_results=len(self._outgoing),
+            queued_frames=len(self._queue) + len(self._slots), queued_results=len(self._outgoing),
             listeners=self._listeners(), producers=len(self._producers),
             latency_ms={"step": c.step_ms.summary(), "service": c.service_ms.summary()}, final=final,
+            seq=self._published_seq, journal=journal, streams=self.streams.stats(now),
         )
 
     def _maybe_stats(self) -> None:
         now = time.monotonic()
         if now >= self._next_stats:
             self._next_stats = now + self.config.stats_interval
+            self.streams.expire(now)
             self._publish_now(b"stats", wire.encode_stats(self.stats()))
 
     def _shutdown(self) -> Stats:
         """Flush what is answered (within ``linger``), publish the final stats, close."""
         if self._stop.is_set():
-            unanswered = len(self._queue) + (self._slot is not None)
+            unanswered = len(self._queue) + len(self._slots)
             last = f"last answered frame {self._last_answered}, " if self._last_answered is not None else ""
             self.log(f"{self._stop_reason}: {last}stopping after {self.counters.answered} answers"
                      + (f"; {unanswered} queued frame(s) left unanswered" if unanswered else ""))
         deadline = time.monotonic() + self.config.linger
         final = self.stats(final=True)
         if self._results is not None:
+            if self._writer is not None:
+                self._writer.close()  # everything answered is written and flushed
+                try:
+                    self._take_durable()
+                except JournalError as exc:
+                    self.log(str(exc))
+            self._release()
             while self._outgoing and time.monotonic() < deadline:
                 self._flush()
                 if self._outgoing:
                     time.sleep(RETRY_MS / 1e3)
             if self._outgoing:
-                self.log(f"{len(self._outgoing)} answer(s) not delivered within {self.config.linger:.1f} s")
+                where = "; they are in the journal" if self.journal is not None else ""
+                self.log(f"{len(self._outgoing)} answer(s) not delivered within {self.config.linger:.1f} s{where}")
             final = self.stats(final=True)
             payload = wire.encode_stats(final)
             while not self._publish_now(b"stats", payload) and time.monotonic() < deadline:
@@ -504,4 +701,12 @@ class LocalizerService:
 
 
 def _key(message: FrameMessage) -> tuple[str, int] | None:
-    return None if message.stream is None else (message.stream, message.id)
+    """A frame's identity for recognising resends: only a frame that names its stream has one
+    (without a stream id a new run's frame 0 and a resent frame 0 look alike)."""
+    return (message.stream, message.id) if message.stream else None
+
+
+def _journaled_key(payload: bytes) -> tuple[str, int] | None:
+    message = msgpack.unpackb(payload, raw=False)
+    stream, frame_id = message.get("stream"), message.get("frame_id")
+    return (stream, frame_id) if stream and isinstance(frame_id, int) else None

@@ -55,6 +55,20 @@ def is_local_endpoint(endpoint: str) -> bool:
         return False  # "*", an interface name, or a host name: all can face a network
 
 
+def history_endpoint(results: str) -> str:
+    """The history endpoint that goes with a results endpoint, unless one is given: the next port
+    (tcp), or the same name with ``-history`` appended (ipc, inproc). Port 0 (any) stays 0."""
+    transport, _, address = results.partition("://")
+    if transport == "tcp":
+        host, colon, port = address.rpartition(":")
+        if not colon or not port.isdigit():
+            raise StreamError(f"cannot derive a history endpoint from {results}: give one")
+        return f"tcp://{host}:{int(port) + 1 if int(port) else 0}"
+    if transport in ("ipc", "inproc"):
+        return f"{results}-history"
+    raise StreamError(f"cannot derive a history endpoint from {results}: use tcp://, ipc:// or inproc://")
+
+
 def check_bind_endpoint(endpoint: str, secure: bool, insecure_ok: bool = False) -> None:
     """Refuse to bind a non-loopback address without CurveZMQ unless told to."""
     transport = endpoint.partition("://")[0]

@@ -19,11 +19,12 @@ class LatencyWindow:
         self.values.append(float(ms))
 
     def summary(self) -> dict[str, float]:
+        """``n`` (a count) and the percentiles in ms; ``{"n": 0}`` before any event."""
         if not self.values:
-            return {"n": 0.0}
+            return {"n": 0}
         a = np.fromiter(self.values, dtype=np.float64)
         p50, p90, p99 = np.percentile(a, [50, 90, 99])
-        return {"n": float(len(a)), "p50": float(p50), "p90": float(p90), "p99": float(p99), "max": float(a.max())}
+        return {"n": len(a), "p50": float(p50), "p90": float(p90), "p99": float(p99), "max": float(a.max())}
 
 
 @dataclass
@@ -39,18 +40,6 @@ class ServiceCounters:
     errors: Counter = field(default_factory=Counter)
     step_ms: LatencyWindow = field(default_factory=LatencyWindow)
     service_ms: LatencyWindow = field(default_factory=LatencyWindow)
-    # Per stream, the last frame id seen, to count ids that never arrived.
-    _last_id: dict[str | None, int] = field(default_factory=dict)
-
-    def saw_frame(self, stream: str | None, frame_id: int) -> None:
-        """Count a frame id; ids skipped since the stream's previous frame are ``missing``."""
-        last = self._last_id.get(stream)
-        if last is None and len(self._last_id) >= 64:
-            del self._last_id[next(iter(self._last_id))]  # forget the oldest stream
-        if last is not None and frame_id > last + 1:
-            self.missing += frame_id - last - 1
-        if last is None or frame_id > last:
-            self._last_id[stream] = frame_id
 
     @property
     def uptime(self) -> float:

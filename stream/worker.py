@@ -3,8 +3,9 @@
 The service's I/O loop keeps reading sockets while the worker computes, so in
 live mode the newest frame is always known the moment the worker is free, and
 producers and listeners are answered even during a long network forward pass.
-The worker owns the localizer (it is stateful and not shared); the I/O loop
-owns every socket except the worker's wake-up socket.
+The worker steps the localizer of the job's stream, one job at a time (the
+localizers share one backbone); the I/O loop owns every socket except the
+worker's wake-up socket.
 """
 
 from __future__ import annotations
@@ -20,11 +21,11 @@ import zmq
 from lostx.core.errors import LostxError
 from lostx.core.estimate import Estimate
 from lostx.core.frame import Frame
-from lostx.core.localizer import Localizer
 
 from .errors import ProtocolError
 from .protocol import FrameMessage
 from .sinks import Sink
+from .streams import StreamState
 
 
 @dataclass
@@ -34,6 +35,9 @@ class Job:
     message: FrameMessage
     received: float
     """time.monotonic() when the message was read."""
+    stream: StreamState
+    restart: bool = False
+    """Start a new traverse with this frame (its stream's clock was restarted)."""
 
 
 @dataclass
@@ -50,10 +54,9 @@ class Answer:
 class Worker(threading.Thread):
     """Answers one job at a time; posts each answer, then an idle notice, and wakes the I/O loop."""
 
-    def __init__(self, localizer: Localizer, sinks: Sequence[Sink], context: zmq.Context, wake_endpoint: str,
+    def __init__(self, sinks: Sequence[Sink], context: zmq.Context, wake_endpoint: str,
                  log: Callable[[str], None]) -> None:
         super().__init__(name="lostx-worker", daemon=True)
-        self.localizer = localizer
         self.sinks = list(sinks)
         self.log = log
         self.jobs: queue.Queue[Job | None] = queue.Queue(maxsize=1)
@@ -63,8 +66,6 @@ class Worker(threading.Thread):
         self._context = context
         self._wake_endpoint = wake_endpoint
         self._wake: zmq.Socket | None = None
-        self._stream: str | None = None
-        self._has_run = False
         self._failed_sinks: set[int] = set()
 
     def run(self) -> None:
@@ -98,17 +99,17 @@ class Worker(threading.Thread):
             frame = message.to_frame()
         except ProtocolError as exc:
             return Answer(job, code=exc.code, text=exc.text)
+        localizer = job.stream.localizer
         try:
-            if message.stream is not None and message.stream != self._stream and self._has_run:
-                self.localizer.reset()  # a new stream is a new traverse
-            if message.stream is not None:
-                self._stream = message.stream
-            self._has_run = True
-            return Answer(job, frame, estimate=self.localizer.step(frame))
+            if job.restart:
+                localizer.reset()
+            return Answer(job, frame, estimate=localizer.step(frame))
         except Exception as exc:  # the localizer must not take the service down with it
             if not isinstance(exc, LostxError):  # a bug rather than bad input: show where
                 self.log(f"frame {message.id}: unexpected {type(exc).__name__}\n{traceback.format_exc()}")
-            return Answer(job, frame, code="localizer_failed", text=f"frame {message.id}: {exc}")
+            # The error carries the frame id in its own field, so the text goes without it.
+            text = (str(exc) or type(exc).__name__).removeprefix(f"frame {message.id}: ")
+            return Answer(job, frame, code="localizer_failed", text=text)
 
     def _run_sinks(self, frame: Frame, estimate: Estimate) -> None:
         for sink in self.sinks:

@@ -16,7 +16,7 @@ from lostx.stream.processes import ProcessGroup, lostx_command
 from lostx.stream.protocol import ErrorMessage, Result, Stats
 
 __all__ = ["ProcessGroup", "lostx_command", "free_port", "endpoints", "Collector", "read_jsonl", "wait_for",
-           "procs", "thumb_map", "nordland_subset"]
+           "procs", "thumb_map", "nordland_subset", "link_frames", "winter_runs"]
 
 
 def free_port() -> int:
@@ -89,10 +89,24 @@ class Collector(threading.Thread):
 
 
 def read_jsonl(path: Path, kind: str = "result") -> list[dict]:
+    """The rows of one kind in a JSON-lines file being written (a last line cut short is left out)."""
     if not path.exists():
         return []
-    rows = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    rows = []
+    for line in path.read_text().splitlines():
+        try:
+            rows.append(json.loads(line))
+        except ValueError:
+            continue
     return [r for r in rows if r.get("type") == kind]
+
+
+def link_frames(paths: list[Path], out: Path) -> Path:
+    """A folder of links to ``paths``: a traverse of its own (frame ids from 0), without copying images."""
+    out.mkdir(parents=True, exist_ok=True)
+    for path in paths:
+        (out / path.name).symlink_to(path)
+    return out
 
 
 @pytest.fixture
@@ -123,7 +137,14 @@ def thumb_map(tmp_path_factory, nordland):
 @pytest.fixture(scope="session")
 def nordland_subset(tmp_path_factory, nordland):
     """A folder of links to the first 300 winter frames: a short traverse for restart tests."""
-    out = tmp_path_factory.mktemp("winter300")
-    for path in sorted((nordland / "winter").iterdir())[:300]:
-        (out / path.name).symlink_to(path)
-    return out
+    return link_frames(sorted((nordland / "winter").iterdir())[:300], tmp_path_factory.mktemp("winter300"))
+
+
+@pytest.fixture(scope="session")
+def winter_runs(tmp_path_factory, nordland) -> list[Path]:
+    """Four traverses of 300 winter frames, one from each quarter of the route (folders of links):
+    four robots' streams."""
+    paths = sorted((nordland / "winter").iterdir())
+    root = tmp_path_factory.mktemp("runs")
+    quarter = len(paths) // 4
+    return [link_frames(paths[k * quarter:k * quarter + 300], root / f"run{k}") for k in range(4)]

@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -123,3 +124,178 @@ def test_malformed_positions_csv_names_the_line(robotcar, tmp_path):
     positions.write_text("x,y\n1,2\n3,four\n")
     proc = lostx("map", "build", robotcar / "day", "--out", tmp_path / "m", "--positions", positions)
     assert_one_line_error(proc, "pos.csv:3", "not a number")
+
+
+# -- start-up, help and usage errors ---------------------------------------------------------------
+
+HEAVY = ("numpy", "cv2", "zmq", "torch", "matplotlib", "rerun", "scipy", "tqdm", "ai_edge_litert")
+
+
+def test_building_the_parser_loads_no_heavy_library():
+    """`lostx --help` and `--version` start at once: command modules load their libraries only when they run."""
+    code = ("import sys; from lostx.cli import build_parser; build_parser(); "
+            f"print(' '.join(m for m in {HEAVY!r} if m in sys.modules))")
+    proc = subprocess.run([sys.executable, "-P", "-c", code], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip() == ""
+
+
+def test_lostx_alone_lists_the_commands():
+    from lostx.cli import COMMANDS
+
+    proc = lostx()
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    for name in COMMANDS:
+        assert re.search(rf"^\s+{name}\b", proc.stdout, re.M), name
+
+
+def test_map_build_help_lists_only_the_options_that_act_there():
+    build, match = lostx("map", "build", "--help").stdout, lostx("match", "--help").stdout
+    for option in ("--scoring", "--top-k", "--window", "--no-tracker"):
+        assert option not in build and option in match
+    for option in ("--out", "--config", "--backbone", "--model", "--threads"):
+        assert option in build
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["match", "M", "Q", "--out", "o.csv", "--window", "-1"], "argument --window: must be at least 1, got -1"),
+        (["match", "M", "Q", "--out", "o.csv", "--window", "0"], "argument --window: must be at least 1, got 0"),
+        (["match", "M", "Q", "--out", "o.csv", "--window", "ten"],
+         "argument --window: expected a whole number, got 'ten'"),
+        (["match", "M", "Q", "--out", "o.csv", "--top-k", "-2"], "argument --top-k: must be at least 1, got -2"),
+        (["match", "M", "Q", "--out", "o.csv", "--top-k", "0"], "argument --top-k: must be at least 1, got 0"),
+        (["map", "build", "I", "--out", "m", "--threads", "0"], "argument --threads: must be at least 1, got 0"),
+        (["map", "build", "I", "--out", "m", "--window", "3"],
+         "unrecognized arguments: --window 3 (see 'lostx map build --help')"),
+        (["serve", "--map", "M", "--window", "0"], "argument --window: must be at least 1, got 0"),
+        (["demo", "--window", "0"], "argument --window: must be at least 1, got 0"),
+        (["demo", "--rate", "0"], "argument --rate: must be above 0, got 0"),
+        (["replay", "S", "--to", "tcp://127.0.0.1:1", "--rate", "-5"], "argument --rate: must be above 0, got -5"),
+        (["replay", "S", "--to", "tcp://127.0.0.1:1", "--wait", "nan"], "argument --wait: must be at least 0, got nan"),
+        (["listen", "tcp://127.0.0.1:1", "--count", "0"], "argument --count: must be at least 1, got 0"),
+        (["eval", "--reference", "R", "--out", "o", "--spacing", "-2"], "argument --spacing: must be above 0, got -2"),
+        (["eval", "--reference", "R", "--out", "o", "--tolerances", "1", "-1"],
+         "argument --tolerances: must be at least 0, got -1"),
+        (["match", "M", "Q", "--out", "o.csv", "--scoring", "best"], "argument --scoring: invalid choice: 'best'"),
+        (["map"], "the following arguments are required: VERB (see 'lostx map --help')"),
+    ],
+)
+def test_a_bad_value_is_one_line_naming_it(args, message, tmp_path):
+    proc = lostx(*args, cwd=tmp_path)
+    assert proc.returncode == 2
+    assert_one_line_error(proc, f"lostx: error: {message}")
+    assert os.listdir(tmp_path) == []  # nothing written
+
+
+def test_a_bad_value_in_a_config_file_is_one_line_naming_file_and_key(cli_map, robotcar, tmp_path):
+    config = tmp_path / "bad.toml"
+    config.write_text("[sequence]\nlength = -3\n")
+    proc = lostx("match", cli_map, robotcar / "night", "--out", tmp_path / "m.csv", "--sequence", "--config", config)
+    assert_one_line_error(proc, f"lostx: error: {config}: [sequence] length must be at least 1, got -3")
+
+
+def test_the_child_processes_run_the_installed_lostx_whatever_the_working_folder(tmp_path):
+    """Started from the folder that holds a clone named lostx/, a child must not import that folder."""
+    from lostx import __version__
+    from lostx.stream.processes import lostx_command
+
+    (tmp_path / "lostx").mkdir()
+    (tmp_path / "lostx" / "README.md").write_text("a clone")
+    proc = subprocess.run(lostx_command("--version"), capture_output=True, text=True, cwd=tmp_path, timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip() == f"lostx {__version__}"
+
+
+# -- outputs checked before the work ---------------------------------------------------------------
+
+
+def test_match_out_that_is_a_folder_fails_before_matching(cli_map, robotcar, tmp_path):
+    (tmp_path / "out").mkdir()
+    proc = lostx("match", cli_map, robotcar / "night", "--out", tmp_path / "out")  # progress bar on
+    assert_one_line_error(proc, f"--out {tmp_path / 'out'} is a folder; give the name of a file to write")
+    assert "matching" not in proc.stderr  # not a frame was matched
+    assert os.listdir(tmp_path / "out") == [] and os.listdir(tmp_path) == ["out"]
+
+
+@pytest.mark.parametrize("command", ["match", "map build", "eval", "listen"])
+def test_an_output_under_a_file_fails_before_the_work(command, cli_map, robotcar, tmp_path):
+    blocker = tmp_path / "file.txt"
+    blocker.write_text("a file, not a folder")
+    out = blocker / "sub" / "out"
+    args = {
+        "match": ["match", cli_map, robotcar / "night", "--out", out],
+        "map build": ["map", "build", robotcar / "day", "--out", out],
+        "eval": ["eval", "--reference", robotcar / "day", "--query", robotcar / "night", "--out", out],
+        "listen": ["listen", "tcp://127.0.0.1:1", "--jsonl", out, "--timeout", "30"],
+    }[command]
+    option = "--jsonl" if command == "listen" else "--out"
+    proc = lostx(*args)
+    assert_one_line_error(proc, f"lostx: error: {option} {out}: {blocker} is a file, not a folder")
+    assert not any(word in proc.stderr for word in ("matching", "describing", "listening"))
+    assert sorted(os.listdir(tmp_path)) == ["file.txt"]
+
+
+# -- what the commands say -------------------------------------------------------------------------
+
+
+def render(stream: str) -> list[str]:
+    """Lines as a terminal shows them: a carriage return moves back to the start of the line, and what
+    follows overwrites what was there (a line not cleared keeps its tail)."""
+    shown = []
+    for line in stream.split("\n"):
+        cells: list[str] = []
+        for part in line.split("\r"):
+            cells[: len(part)] = list(part)
+        shown.append("".join(cells).rstrip())
+    return [line for line in shown if line]
+
+
+def test_an_error_during_matching_starts_a_line_of_its_own(robotcar, cli_map, tmp_path):
+    images = tmp_path / "night"
+    images.mkdir()
+    for name in sorted(os.listdir(robotcar / "night"))[:4]:
+        shutil.copy(robotcar / "night" / name, images / name)
+    (images / "0000064.png").write_bytes(b"not an image")  # third in name order
+    proc = lostx("match", cli_map, images, "--out", tmp_path / "m.csv")  # progress bar on
+    assert proc.returncode == 2 and "matching" in proc.stderr  # it failed during the work
+    assert render(proc.stderr)[-1].startswith("lostx: error: ")
+    assert "0000064.png" in render(proc.stderr)[-1]
+    assert not (tmp_path / "m.csv").exists() and not (tmp_path / "m.csv.partial").exists()
+
+
+def test_match_says_why_the_sequence_answers_are_not_localized(cli_map, robotcar, tmp_path):
+    proc = lostx("match", cli_map, robotcar / "night", "--out", tmp_path / "s.csv", "--sequence", "--window", "12",
+                 "--quiet")
+    assert proc.returncode == 0, proc.stderr
+    assert (f"note: the sequence window is 12 frames and {robotcar / 'night'} has 10: the window never fills, so "
+            f"every answer is not_localized; pass --window 10 or less") in proc.stdout
+    assert "0 localized, 10 not_localized while the 12-frame sequence window filled" in proc.stdout
+    states = {row["state"] for row in csv.DictReader((tmp_path / "s.csv").open())}
+    assert states == {"not_localized"}
+
+
+def test_the_summary_lists_only_the_stages_that_ran(robotcar, tmp_path):
+    thumbnails = tmp_path / "thumbnails"
+    assert lostx("map", "build", robotcar / "day", "--out", thumbnails, "--descriptor", "thumbnail",
+                 "--quiet").returncode == 0
+    proc = lostx("match", thumbnails, robotcar / "night", "--out", tmp_path / "m.csv", "--quiet")
+    assert proc.returncode == 0, proc.stderr
+    stages = re.search(r"ms per frame; (.*) ms\)", proc.stdout).group(1)
+    assert [s.split()[0] for s in stages.split(", ")] == ["descriptor", "search"]
+
+
+def test_frames_unlike_the_maps_get_one_warning_line_each(cli_map, nordland, tmp_path):
+    frames = tmp_path / "winter"
+    frames.mkdir()
+    for path in sorted((nordland / "winter").iterdir())[1000:1006]:
+        shutil.copy(path, frames / path.name)
+    proc = lostx("match", cli_map, frames, "--out", tmp_path / "m.csv")  # progress bar on
+    assert proc.returncode == 0, proc.stderr
+    warnings = [line for line in render(proc.stderr) if "warning" in line]
+    assert len(warnings) == 2, proc.stderr
+    assert warnings[0].startswith("lostx: warning: frame 0 is 64 x 32 pixels (the map's frames: 1024 x 640); "
+                                  "greyscale (the map's frames: colour)")
+    assert warnings[1].startswith("lostx: warning: in frames 0 to 4 the network finds ")
+    assert len(list(csv.DictReader((tmp_path / "m.csv").open()))) == 6  # answered all the same

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from lostx.core.config import Config, config_from_dict, load_config
+from lostx.core.config import LIMITS, Config, config_from_dict, load_config
 from lostx.core.errors import InputError
 
 DOCS = Path(__file__).resolve().parents[1] / "docs" / "config.md"
@@ -62,3 +62,60 @@ def test_broken_toml_is_an_input_error(tmp_path):
         load_config(path)
     with pytest.raises(InputError, match="config file not found"):
         load_config(tmp_path / "missing.toml")
+
+
+@pytest.mark.parametrize(
+    "data, message",
+    [
+        ({"sequence": {"length": -3}}, "[sequence] length must be at least 1, got -3"),
+        ({"sequence": {"length": 0}}, "[sequence] length must be at least 1, got 0"),
+        ({"verify": {"top_k": -2}}, "[verify] top_k must be at least 1, got -2"),
+        ({"backbone": {"threads": 0}}, "[backbone] threads must be at least 1, got 0"),
+        ({"sequence": {"min_confidence": 1.5}}, "[sequence] min_confidence must be between 0 and 1, got 1.5"),
+        ({"sequence": {"speeds": []}}, "[sequence] speeds must not be empty"),
+        ({"sequence": {"acquire_speeds": [1.0, float("nan")]}}, "[sequence] acquire_speeds must be a number, got nan"),
+        ({"tracker": {"gate_sigma": 0}}, "[tracker] gate_sigma must be above 0, got 0.0"),
+        ({"stream": {"stats_interval": -1}}, "[stream] stats_interval must be above 0, got -1.0"),
+    ],
+)
+def test_values_outside_their_range_name_the_file_and_the_key(data, message):
+    with pytest.raises(InputError) as caught:
+        config_from_dict(data, source="settings.toml")
+    assert str(caught.value) == f"settings.toml: {message}"
+
+
+def test_every_way_of_making_a_config_checks_the_ranges():
+    config = Config()
+    with pytest.raises(InputError, match=r"\[sequence\] length must be at least 1, got -1"):
+        dataclasses.replace(config, sequence=dataclasses.replace(config.sequence, length=-1))
+    with pytest.raises(InputError, match=r"\[verify\] top_k must be at least 1, got 0"):
+        Config(verify=dataclasses.replace(config.verify, top_k=0))
+    edge = dataclasses.replace(config, sequence=dataclasses.replace(config.sequence, length=1, min_confidence=1.0))
+    assert edge.sequence.length == 1  # the ends of a range are valid values
+
+
+def _numeric(hint) -> bool:
+    import typing
+
+    args = typing.get_args(hint)
+    return hint in (int, float) or (typing.get_origin(hint) is tuple and args and args[0] in (int, float))
+
+
+def test_every_numeric_setting_has_a_range_and_every_range_a_setting():
+    import typing
+
+    for name, rules in LIMITS.items():
+        hints = typing.get_type_hints(type(getattr(Config(), name)))
+        for key in rules:
+            assert key in hints, f"LIMITS names [{name}] {key}, which is not a setting"
+        for key, hint in hints.items():
+            if _numeric(hint):
+                assert key in rules, f"[{name}] {key} has no valid range in LIMITS"
+    assert set(LIMITS) <= {f.name for f in dataclasses.fields(Config)}
+
+
+def test_docs_list_every_valid_range():
+    body = DOCS.read_text().split("## Valid values")[1]
+    for name, rules in LIMITS.items():
+        for key, bounds in rules.items():
+            assert re.search(rf"\| `\[{name}\] {key}` \| {re.escape(bounds.describe())}[ (]", body), (name, key)

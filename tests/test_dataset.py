@@ -102,7 +102,7 @@ def test_positions_on_one_side_only_is_an_error(tmp_path, robotcar):
     ref = copy_frames(robotcar, tmp_path / "ref", n=2)
     query = copy_frames(robotcar, tmp_path / "query", "night", n=2)
     (ref / "positions.csv").write_text("x,y\n0,0\n5,0\n")
-    with pytest.raises(InputError, match=r"query has no positions but the other folder has"):
+    with pytest.raises(InputError, match=r"query has no positions but the other traverse has"):
         open_pair(ref, query)
 
 

@@ -53,11 +53,18 @@ def test_figures_match_the_single_frame_and_sequence_runs(report):
     assert find(rows, "thumbnail", "single", 0.0)["recall_at_1"] == pytest.approx(0.2)
 
 
-def test_plots_are_written(report):
+def test_plots_are_written_and_shown_in_the_report(report, robotcar):
     out = report[0]
+    text = (out / "report.md").read_text()
     for name in ("pr_0frames.png", "pr_1frames.png", "pr_2frames.png", "max_f1_vs_tolerance.png"):
         data = (out / name).read_bytes()
         assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 20_000
+        assert f"]({name})" in text
+    # The settings that produced the numbers.
+    assert f"| reference | `{(robotcar / 'day').resolve()}` (10 frames) |" in text
+    assert f"| query | `{(robotcar / 'night').resolve()}` (10 frames) |" in text
+    assert "| sequence window | 3 frames |" in text
+    assert "| backbone | mosaic-ade20k (`mosaic-r4-ade20k31-uint8.tflite`) |" in text
 
 
 def test_rerunning_reuses_the_network_outputs(report, robotcar, tmp_path):

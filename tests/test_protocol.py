@@ -17,8 +17,10 @@ from lostx.replay.folder import folder_traverse
 from lostx.stream import protocol as wire
 from lostx.stream.errors import ProtocolError
 from lostx.stream.images import header_size
-from lostx.stream.protocol import Ack, ErrorMessage, Hello, Limits, Ready, Result, Stats
-from lostx.stream.sockets import check_bind_endpoint, is_local_endpoint
+from lostx.stream.protocol import (
+    Ack, ErrorMessage, Fetch, Hello, History, JournalInfo, Limits, Ready, Result, Stats, StreamStats, Tag,
+)
+from lostx.stream.sockets import check_bind_endpoint, history_endpoint, is_local_endpoint
 from lostx.stream.errors import StreamError
 
 LIMITS = Limits()
@@ -92,24 +94,84 @@ def test_result_carries_every_summary_field():
         latency_ms={"total": 12.0},
     )
     summary = estimate.summary()
-    topic, payload = b"result", wire.encode_result(summary, "s1")
+    tag = Tag("robot-2", 41, 7, "0123abcd")
+    topic, payload = b"result", wire.encode_result(summary, "s1", tag)
     result = wire.decode_published(topic, payload, LIMITS)
     assert isinstance(result, Result)
+    assert result.tag == tag
     plain = result.to_dict()
     assert plain.pop("session") == "s1"
+    assert {k: plain.pop(k) for k in ("stream", "seq", "stream_seq", "journal")} == \
+        {"stream": "robot-2", "seq": 41, "stream_seq": 7, "journal": "0123abcd"}
     # The listener's view holds exactly what Estimate.summary() holds, value for value.
     assert plain == summary
-    assert set(f.name for f in dataclasses.fields(Result)) - {"session"} == set(summary)
+    assert set(f.name for f in dataclasses.fields(Result)) - {"session", "tag"} == set(summary)
+    # Without a journal the field is left out, not sent empty.
+    bare = wire.decode_published(b"result", wire.encode_result(summary, "s1", Tag("", 1, 1)), LIMITS)
+    assert bare.tag == Tag("", 1, 1, None) and "journal" not in msgpack.unpackb(wire.encode_result(summary, "s",
+                                                                                                  Tag("", 1, 1)))
 
 
 def test_stats_round_trip():
+    streams = {"a": StreamStats(10, 8, 1, 1, 0, 0, 0, 1, 0.25), "b": StreamStats(3, 3, 0, 0, 2, 1, 1, 0, 12.5)}
     stats = Stats("s", "live", 1.5, 10, 8, 2, 0, 0, 1, {"bad_type": 1}, 1, 0, 2, 1,
-                  {"step": {"n": 8.0, "p50": 100.0}}, final=True)
-    assert wire.decode_published(b"stats", wire.encode_stats(stats), LIMITS) == stats
+                  {"step": {"n": 8, "p50": 100.0}}, final=True, seq=11, journal=JournalInfo("j", 1, 11, 9000, 1),
+                  streams=streams)
+    got = wire.decode_published(b"stats", wire.encode_stats(stats), LIMITS)
+    assert got == stats
+    # A count is sent as an integer, not a float.
+    assert msgpack.unpackb(wire.encode_stats(stats))["latency_ms"]["step"]["n"] == 8
+    assert type(got.latency_ms["step"]["n"]) is int
+    no_journal = dataclasses.replace(stats, journal=None, streams={})
+    assert wire.decode_published(b"stats", wire.encode_stats(no_journal), LIMITS) == no_journal
+
+
+def test_errors_that_answer_frames_carry_their_place_and_refusals_do_not():
+    answer = ErrorMessage("bad_timestamp", "timestamp 1e+18 is ...", 9, "s", Tag("cam", 12, 4, "j1"))
+    refusal = ErrorMessage("malformed", "not a valid msgpack message", None, "s")
+    for error in (answer, refusal):
+        payload = wire.encode_error(error)
+        assert wire.decode_published(b"error", payload, LIMITS) == error
+        assert wire.decode_reply(payload, LIMITS) == error  # the producer reads the same message
+    assert "seq" not in msgpack.unpackb(wire.encode_error(refusal))
+    assert wire.decode_answer(wire.encode_error(answer), LIMITS) == answer
+    with pytest.raises(ProtocolError, match="journaled error needs"):
+        wire.decode_answer(wire.encode_error(refusal), LIMITS)
+
+
+def test_history_requests_and_replies_round_trip_and_bad_ones_are_refused():
+    fetch = Fetch(after=120, max=50)
+    assert wire.decode_fetch(wire.encode_fetch(fetch), LIMITS) == fetch
+    summary = Estimate(1, 0.0, "localized", 2, "a", None, 0.5, 0.1, 2, []).summary()
+    items = (wire.encode_result(summary, "s", Tag("x", 121, 1, "j")),
+             wire.encode_error(ErrorMessage("bad_image", "no", 2, "s", Tag("x", 122, 2, "j"))))
+    history = History("s", "j", 120, 100, 122, items)
+    got = wire.decode_history(wire.encode_history(history), LIMITS)
+    assert got == history
+    assert [wire.decode_answer(item, LIMITS).tag.seq for item in got.items] == [121, 122]
+    for message, code in (({"v": 2, "type": "fetch"}, "missing_field"),
+                          ({"v": 2, "type": "fetch", "after": -1}, "bad_type"),
+                          ({"v": 2, "type": "fetch", "after": 1, "max": 0}, "bad_value"),
+                          ({"v": 2, "type": "fetch", "after": 1, "max": wire.MAX_FETCH + 1}, "bad_value"),
+                          ({"v": 2, "type": "fetch", "after": 1, "from": 3}, "unknown_field"),
+                          ({"v": 1, "type": "fetch", "after": 1}, "bad_version"),
+                          ({"v": 2, "type": "frame", "after": 1}, "unknown_type")):
+        with pytest.raises(ProtocolError) as info:
+            wire.decode_fetch(msgpack.packb(message), LIMITS)
+        assert info.value.code == code, message
+
+
+def test_the_history_endpoint_goes_with_the_results_endpoint():
+    assert history_endpoint("tcp://127.0.0.1:5556") == "tcp://127.0.0.1:5557"
+    assert history_endpoint("tcp://*:0") == "tcp://*:0"
+    assert history_endpoint("ipc:///run/lostx/results") == "ipc:///run/lostx/results-history"
+    with pytest.raises(StreamError, match="cannot derive a history endpoint"):
+        history_endpoint("tcp://host")
 
 
 def test_listener_side_tolerates_new_fields_but_checks_known_ones():
-    summary = Estimate(1, 0.0, "localized", 2, "a", None, 0.5, 0.1, 2, []).summary()
+    summary = {**Estimate(1, 0.0, "localized", 2, "a", None, 0.5, 0.1, 2, []).summary(),
+               "stream": "", "seq": 1, "stream_seq": 1}
     data = msgpack.packb({"v": wire.VERSION, "type": "result", **summary, "added_later": [1, 2]})
     assert wire.decode_published(b"result", data, LIMITS).match_index == 2
     data = msgpack.packb({"v": wire.VERSION, "type": "result", **summary, "confidence": "high"})
@@ -266,14 +328,37 @@ def test_decompression_bombs_are_refused_before_decoding(night_frame):
     assert refused(msgpack.packb(raw)).code == "image_too_large"
 
 
-def test_images_that_do_not_decode(night_frame):
+def test_images_that_do_not_decode(night_frame, capfd):
     fields = valid_fields(night_frame)
     del fields["dtype"], fields["shape"]
+    png = bytearray(cv2.imencode(".png", night_frame.image)[1].tobytes())
+    png[5000] ^= 0xFF  # damaged image data: libpng, as OpenCV calls it, prints a line for this
+    jpeg = cv2.imencode(".jpg", night_frame.image)[1].tobytes()
+    capfd.readouterr()
     for encoding, data in (("png", b"not a png at all, clearly"), ("jpeg", b"\xff\xd8\xff\xe0garbage"),
-                           ("png", _png_claiming(64, 32) + b"\x00" * 40)):
+                           ("png", _png_claiming(64, 32) + b"\x00" * 40), ("png", bytes(png)),
+                           ("png", bytes(png[:len(png) // 2])), ("jpeg", jpeg[:len(jpeg) // 2])):
         fields.update(encoding=encoding, image=data)
         error = refused(msgpack.packb(fields))
         assert error.code == "bad_image" and error.frame_id == 3, (encoding, error)
+        assert error.text.startswith("image: "), error.text
+    # Nothing reaches the process's stderr: a peer sending broken images cannot flood the service's log.
+    assert capfd.readouterr().err == ""
+
+
+def test_compressed_images_decode_to_the_pixels_opencv_gives(night_frame):
+    bgr = np.ascontiguousarray(night_frame.image[:, :, ::-1])
+    for ext, encoding in ((".png", "png"), (".jpg", "jpeg")):
+        data = cv2.imencode(ext, bgr)[1].tobytes()
+        fields = valid_fields(night_frame)
+        fields.update(encoding=encoding, image=data)
+        del fields["dtype"]
+        got = wire.decode_request(msgpack.packb(fields), LIMITS).to_frame().image
+        assert np.array_equal(got, cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)[:, :, ::-1])
+    grey = cv2.imencode(".png", night_frame.image[:, :, 1])[1].tobytes()
+    fields.update(encoding="png", image=grey)
+    got = wire.decode_request(msgpack.packb(fields), LIMITS).to_frame().image
+    assert got.shape == (640, 1024, 3) and np.array_equal(got[:, :, 0], night_frame.image[:, :, 1])
 
 
 # -- endpoints ---------------------------------------------------------------------------------
@@ -294,3 +379,21 @@ def test_binding_a_network_address_needs_keys_or_insecure():
     check_bind_endpoint("tcp://0.0.0.0:5555", secure=False, insecure_ok=True)
     with pytest.raises(StreamError, match="refusing to bind tcp://0.0.0.0:5555"):
         check_bind_endpoint("tcp://0.0.0.0:5555", secure=False)
+
+
+def test_the_bytes_in_the_protocol_doc_are_what_lostx_reads():
+    """docs/protocol.md shows messages as JSON-like text and msgpack hex: each pair must agree."""
+    import re
+    from pathlib import Path
+
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "protocol.md").read_text()
+    blocks = re.findall(r"```\n(\{.*?\})\n((?:[0-9a-f]{2}[ \n])+)```", doc, re.S)
+    assert len(blocks) >= 4
+    for text, hex_bytes in blocks:
+        message = msgpack.unpackb(bytes.fromhex(hex_bytes.replace("\n", " ")))
+        assert message["v"] == wire.VERSION
+        for key in re.findall(r'"(\w+)":', text):
+            assert key in message, (key, text)
+        decoded = {"hello": wire.decode_request, "frame": wire.decode_request, "ack": wire.decode_reply,
+                   "fetch": wire.decode_fetch}[message["type"]](bytes.fromhex(hex_bytes.replace("\n", " ")), LIMITS)
+        assert decoded is not None

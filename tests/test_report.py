@@ -55,7 +55,8 @@ def test_markdown_table_rows_in_percent():
     lines = text.strip().splitlines()
     assert lines[0].startswith("| method | mode | tolerance | R@100P %")
     assert len(lines) == 2 + 3
-    assert f"| thumbnail | single | 1 frames | {100 * evals[1].recall_at_100p:.1f} |" in lines[3]
+    assert f"| thumbnail | single | 1 frame | {100 * evals[1].recall_at_100p:.1f} |" in lines[3]
+    assert "| thumbnail | single | 2 frames |" in lines[4]
 
 
 def test_plots_are_written_as_png(tmp_path):
@@ -96,3 +97,42 @@ def test_read_matches_csv_bad_rows_name_the_line(tmp_path):
     path.write_text("query,match_index\n")
     with pytest.raises(InputError, match=r"m\.csv:1: header lacks query_index, score"):
         read_matches_csv(path)
+
+
+def test_a_method_keeps_its_colour_and_modes_differ_in_dashes():
+    styles = report.method_styles([("lostx", "single"), ("lostx", "sequence"), ("thumbnail", "single"),
+                                   ("thumbnail", "sequence")])
+    lostx_single, lostx_sequence, thumb_single, thumb_sequence = styles
+    assert lostx_single.colour != thumb_single.colour
+    assert [s.dashes for s in styles] == ["-", "--", "-", "--"]
+    # The sequence line is the method's hue, lighter, narrower and drawn on top, so a line lying on it shows.
+    assert all(b >= a for a, b in zip(lostx_single.colour, lostx_sequence.colour))
+    assert np.argmax(lostx_single.colour) == np.argmax(lostx_sequence.colour)
+    assert lostx_sequence.width < lostx_single.width and lostx_sequence.layer > lostx_single.layer
+    # Earlier methods are wider: two perfect methods on the same line both stay visible.
+    assert lostx_single.width > thumb_single.width and lostx_sequence.width >= thumb_sequence.width
+
+
+def test_pr_lines_leave_out_the_points_at_recall_zero():
+    (gt,) = index_aligned(4, 4, [0])
+    # The most confident answer is wrong: the curve's first point is (recall 0, precision 0).
+    curve = evaluate(np.array([3, 1, 2, 0]), np.array([0.1, 0.2, 0.3, 0.4]), gt).curve
+    assert curve.recall[0] == 0 and curve.precision[0] == 0
+    recall, precision = report.pr_line(curve)
+    np.testing.assert_allclose(recall, [25, 50, 50])
+    np.testing.assert_allclose(precision, [50, 200 / 3, 50])
+
+
+def test_report_md_records_the_settings_and_shows_the_figures(tmp_path):
+    evals = sample_evaluations()
+    path = report.write_markdown(
+        tmp_path / "report.md", [report.report_entry("thumbnail", "single", e) for e in evals], "day vs night",
+        settings={"sequence window": "3 frames", "backbone": "mosaic-ade20k"},
+        figures=[("precision-recall at a tolerance of 0 frames", "pr_0frames.png"),
+                 ("max F1", tmp_path / "max_f1_vs_tolerance.png")])
+    text = path.read_text()
+    assert text.startswith("# day vs night\n\n## Settings\n")
+    assert "| sequence window | 3 frames |\n| backbone | mosaic-ade20k |" in text
+    assert text.index("## Settings") < text.index("## Results") < text.index("## Figures")
+    assert "![precision-recall at a tolerance of 0 frames](pr_0frames.png)" in text
+    assert "![max F1](max_f1_vs_tolerance.png)" in text  # linked relative to the report

@@ -7,7 +7,9 @@ in the test's temporary folder.
 
 from __future__ import annotations
 
+import csv
 import dataclasses
+import json
 import os
 import re
 import signal
@@ -22,28 +24,34 @@ import numpy as np
 import pytest
 import zmq
 
-from lostx.core.config import StreamConfig
+from lostx.core.config import Config, StreamConfig, load_config
 from lostx.core.frame import Frame
 from lostx.core.localizer import Localizer
 from lostx.replay.folder import folder_traverse
 from lostx.replay.pace import Pace, paced
 from lostx.stream import protocol as wire
 from lostx.stream.client import Listener
-from lostx.stream.errors import StreamError
+from lostx.stream.errors import ProtocolError, StreamError
+from lostx.stream.journal import Journal
 from lostx.stream.producer import FramePublisher
 from lostx.stream.protocol import ErrorMessage, Limits, Ready, Result
 from lostx.stream.replay import replay
 from lostx.stream.service import LocalizerService
 from lostx.stream.sockets import ClientKeys
+from lostx.stream.streams import AnsweredIds, check_time, localizer_factory
 
 from streamtools import (  # noqa: F401  (fixtures)
-    Collector, endpoints, free_port, lostx_command, nordland_subset, procs, read_jsonl, thumb_map, wait_for,
+    Collector, endpoints, free_port, link_frames, lostx_command, nordland_subset, procs, read_jsonl, thumb_map,
+    wait_for, winter_runs,
 )
 
 WINTER_FRAMES = 3576
 
 
 def serve(refmap, frames: str, results: str, mode: str, *extra: str) -> list[str]:
+    """``lostx serve``; in lossless mode without a journal unless ``extra`` names one."""
+    if mode == "lossless" and "--journal" not in extra:
+        extra = ("--no-journal", *extra)
     return lostx_command("serve", "--map", str(refmap.path), "--frames", frames, "--results", results,
                          "--mode", mode, "--stats-interval", "0.2", *extra)
 
@@ -120,52 +128,106 @@ def test_live_mode_answers_the_newest_frame_and_counts_the_dropped(day_map, robo
     assert final.received + final.missing == 10 and final.missing == sent.counts.dropped
 
 
-def test_lossless_nordland_every_frame_once_in_order_with_a_slow_listener(thumb_map, nordland, procs, tmp_path):
-    """3576 winter frames against the summer map. One listener stalls after its first result until the
-    service reports answers piling up for it, then goes on slowly; nothing may be lost or reordered."""
+def wait_until_still(count, quiet: float, timeout: float, what: str) -> int:
+    """Wait until ``count()`` has not changed for ``quiet`` seconds; its value then."""
+    deadline = time.monotonic() + timeout
+    last, since = count(), time.monotonic()
+    while time.monotonic() - since < quiet:
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout:.0f} s waiting for {what}")
+        time.sleep(0.05)
+        now = count()
+        if now != last:
+            last, since = now, time.monotonic()
+    return last
+
+
+def test_lossless_nordland_a_slow_and_a_stopped_then_killed_listener_lose_nothing(thumb_map, nordland, procs,
+                                                                                  tmp_path):
+    """3576 winter frames against the summer map, with a journal. One listener is slow throughout.
+    `lostx listen` is stopped (SIGSTOP) after 300 answers, which holds the whole chain, then killed with
+    answers buffered for it; `lostx listen --resume` on the same file picks up where it stopped. Both
+    listeners get every answer once, in order."""
     frames, results = endpoints("ipc", tmp_path)
     config = tmp_path / "stream.toml"
     config.write_text("[stream]\nresult_hwm = 10\n")
-    blocked = threading.Event()
-
-    window = StreamConfig().window
-
-    class Watch(Collector):
-        def run(self) -> None:
-            # Sets `blocked` once the stats show the producer's whole window answered and waiting for a
-            # listener: the service is holding the producer back (without XPUB_NODROP it never waits).
-            while not self._halt.is_set():
-                message = self.listener.receive(0.1)
-                if message is not None and message.queued_results >= window:
-                    blocked.set()
-                    self.stats.append(message)
-            self.listener.close()
-
-    watch = Watch(results, topics=("stats",))
-    slow = Collector(results, topics=("result",), gate=blocked, delay=lambda n: 0.001, hwm=1, rcvbuf=4096)
+    jsonl = tmp_path / "listen.jsonl"
+    listen = lostx_command("listen", results, "--jsonl", str(jsonl), "--resume")
+    slow = Collector(results, topics=("result",), delay=lambda n: 0.001, hwm=1, rcvbuf=4096)
     start = time.monotonic()
     try:
-        procs.start("serve", serve(thumb_map, frames, results, "lossless", "--wait-listeners", "2",
-                                   "--config", str(config)))
-        jsonl = tmp_path / "listen.jsonl"
-        procs.start("listen", lostx_command("listen", results, "--jsonl", str(jsonl), "--count",
-                                            str(WINTER_FRAMES), "--quiet"))
+        procs.start("serve", serve(thumb_map, frames, results, "lossless", "--journal", str(tmp_path / "journal"),
+                                   "--wait-listeners", "2", "--config", str(config)))
+        first = procs.start("listen", listen + ["--quiet", "--count", str(WINTER_FRAMES)])
         procs.start("replay", replay_cmd(nordland / "winter", frames, "--as-fast-as-possible"))
+        wait_for(lambda: len(read_jsonl(jsonl)) >= 300, 120, "300 answers in the listener's file")
+        first.send_signal(signal.SIGSTOP)
+        # Its queue fills, and the service waits for it: nobody gets answers any more, the producer waits.
+        held_at = wait_until_still(lambda: len(slow.results), 2.0, 60, "the stopped listener to hold the service")
+        assert held_at < WINTER_FRAMES - 500, "the stopped listener did not hold the service back"
+        first.kill()  # with everything buffered for it
+        first.wait(10)
+        done = len(read_jsonl(jsonl))
+        assert done < held_at
+        procs.start("listen-again", listen + ["--count", str(WINTER_FRAMES - done)])
         assert procs.processes["replay"].wait(400) == 0
-        assert procs.processes["listen"].wait(30) == 0
+        assert procs.processes["listen-again"].wait(120) == 0
         wait_for(lambda: len(slow.results) == WINTER_FRAMES, 60, "the slow listener's last result")
         elapsed = time.monotonic() - start
         assert procs.stop("serve") == 0
     finally:
         slow.stop()
-        watch.stop()
-    assert blocked.is_set() and not slow.gate_timed_out, "the slow listener never held the service back"
     everything = list(range(WINTER_FRAMES))
-    assert [r["frame_id"] for r in read_jsonl(jsonl)] == everything
-    assert slow.ids() == everything
+    rows = read_jsonl(jsonl)
+    assert [r["frame_id"] for r in rows] == everything
+    assert [r["seq"] for r in rows] == [n + 1 for n in everything]
+    assert slow.ids() == everything and [r.tag.seq for r in slow.results] == [n + 1 for n in everything]
+    assert f"{WINTER_FRAMES - done} results; " in procs.log("listen-again")
+    assert "recovered from the journal" in procs.log("listen-again")
+    assert "MISSED" not in procs.log("listen-again")
     assert f"{WINTER_FRAMES} answered" in procs.log("replay")
     assert "0 dropped, 0 missing, 0 errors" in procs.log("serve")
-    print(f"lossless Nordland: {WINTER_FRAMES} frames in {elapsed:.1f} s")
+    print(f"lossless Nordland: {WINTER_FRAMES} frames in {elapsed:.1f} s; held at {held_at}, resumed after {done}")
+
+
+def test_four_robots_interleaved_on_one_service_get_the_answers_each_gets_alone(thumb_map, winter_runs, procs,
+                                                                               tmp_path):
+    expected = {}
+    for k, folder in enumerate(winter_runs):
+        localizer = Localizer(thumb_map)
+        expected[f"robot-{k}"] = [localizer.step(frame).summary() for frame in folder_traverse(folder)]
+    frames, results = endpoints("ipc", tmp_path)
+    listener = Collector(results)
+    try:
+        for k, folder in enumerate(winter_runs):
+            procs.start(f"replay-{k}", lostx_command("replay", str(folder), "--to", frames, "--wait", "60",
+                                                     "--as-fast-as-possible", "--stream", f"robot-{k}"))
+        # All four wait for the service, so that they start together and their frames interleave.
+        wait_for(lambda: all("waiting for the service" in procs.log(f"replay-{k}") for k in range(4)), 60,
+                 "the four producers")
+        procs.start("serve", serve(thumb_map, frames, results, "lossless", "--journal", str(tmp_path / "journal")))
+        for k in range(4):
+            assert procs.processes[f"replay-{k}"].wait(300) == 0
+        wait_for(lambda: len(listener.results) == 1200, 30, "every result")
+        assert procs.stop("serve") == 0
+        wait_for(lambda: listener.final is not None, 10, "the final stats")
+    finally:
+        listener.stop()
+    got = listener.results
+    assert not listener.errors
+    assert [r.tag.seq for r in got] == list(range(1, 1201))
+    switches = sum(a.tag.stream != b.tag.stream for a, b in zip(got, got[1:]))
+    assert switches > 300, f"the streams hardly interleaved ({switches} switches)"
+    for name, answers in expected.items():
+        mine = [r for r in got if r.tag.stream == name]
+        assert [r.tag.stream_seq for r in mine] == list(range(1, len(answers) + 1))
+        assert [r.frame_id for r in mine] == list(range(len(answers)))
+        for result, alone in zip(mine, answers):
+            same_answer(result.to_dict(), alone)
+        # Not warming up for ever, as a service that reset the localizer at every switch of stream was.
+        assert sum(r.localized for r in mine) == sum(a["state"] == "localized" for a in answers) > 0
+        stats = listener.final.streams[name]
+        assert (stats.received, stats.answered, stats.errors, stats.missing) == (len(answers), len(answers), 0, 0)
 
 
 # -- a socket never trusts its peer ------------------------------------------------------------
@@ -296,6 +358,12 @@ def test_fuzz_the_service_answers_every_bad_message_and_stays_up(day_map, robotc
     assert final.errors_by_code == by_code
     # Listeners heard of every refusal too (frame ids included), in the order they happened.
     assert [(e.code, e.frame_id) for e in listener.errors] == [(r.code, r.frame_id) for r in replies]
+    # The text does not repeat the frame id its own field carries ("frame 7: frame 7: ...").
+    assert any(r.code == "localizer_failed" for r in replies)
+    assert not [r.text for r in replies if r.text.startswith(f"frame {r.frame_id}:")]
+    # Hundreds of broken images, and not a line about them in the service's log.
+    log = procs.log("serve")
+    assert "libpng" not in log and "JPEG" not in log and len(log.splitlines()) <= 4, log[-2000:]
 
 
 def test_a_message_over_twice_the_limit_is_cut_off_by_the_transport(thumb_map, procs, tmp_path):
@@ -425,6 +493,299 @@ def test_producer_and_listener_start_first_and_survive_a_service_restart(thumb_m
     assert "300 answered" in procs.log("replay") and "restarted 1 time" in procs.log("replay")
 
 
+def test_kill_9_of_a_service_with_a_journal_loses_and_duplicates_nothing(thumb_map, nordland_subset, procs,
+                                                                        tmp_path):
+    frames, results = endpoints("tcp", tmp_path)
+    history = f"tcp://127.0.0.1:{free_port()}"
+    journal, jsonl = tmp_path / "journal", tmp_path / "listen.jsonl"
+    service = serve(thumb_map, frames, results, "lossless", "--journal", str(journal), "--history", history)
+    procs.start("listen", lostx_command("listen", results, "--history", history, "--jsonl", str(jsonl),
+                                        "--count", "300"))
+    procs.start("replay", replay_cmd(nordland_subset, frames, "--rate", "150", "--stream", "train-1"))
+    first = procs.start("serve", service)
+    wait_for(lambda: len(read_jsonl(jsonl)) >= 100, 60, "100 answers from the first service")
+    first.kill()  # a crash: no flushing, no goodbye
+    first.wait(10)
+    procs.start("serve-again", service)
+    assert procs.processes["replay"].wait(120) == 0
+    assert procs.processes["listen"].wait(60) == 0
+    assert procs.stop("serve-again") == 0
+    rows = read_jsonl(jsonl)
+    # Every frame answered once, in order, numbered without a gap across the two services.
+    assert [r["frame_id"] for r in rows] == list(range(300))
+    assert [r["seq"] for r in rows] == list(range(1, 301))
+    assert {r["stream"] for r in rows} == {"train-1"} and len({r["session"] for r in rows}) == 2
+    assert "300 answered" in procs.log("replay") and "restarted 1 time" in procs.log("replay")
+    assert "MISSED" not in procs.log("listen")
+    with Journal(journal) as kept:  # both services are gone: the journal holds each answer once
+        payloads = kept.read(0, 1000, 1 << 30)
+    assert [msgpack.unpackb(p)["frame_id"] for p in payloads] == list(range(300))
+    assert "journal holds answers 1-300" in procs.log("serve-again")
+
+
+def test_a_bad_timestamp_refuses_that_frame_only_and_the_stream_goes_on(thumb_map, nordland, tmp_path):
+    source = list(folder_traverse(nordland / "winter"))[:40]
+    stamps = [100.0 + 0.1 * i for i in range(40)]
+    stamps[20] = 1e18  # absurdly far ahead
+    stamps[25] = stamps[24] - 0.05  # a little back in time
+    stamps[30:] = [-5000.0 + 0.1 * i for i in range(10)]  # back by more than max_time_jump: a restarted clock
+    frames = [dataclasses.replace(frame, timestamp=t) for frame, t in zip(source, stamps)]
+    frames_at, results_at = endpoints("ipc", tmp_path)
+    config = StreamConfig(frames=frames_at, results=results_at, mode="lossless", journal=tmp_path / "journal",
+                          stats_interval=0.1)
+    logs: list[str] = []
+    service = LocalizerService(localizer_factory(thumb_map, Config()), config, log=logs.append)
+    listener = Collector(results_at)
+    with service:
+        thread = threading.Thread(target=service.run, daemon=True)
+        thread.start()
+        try:
+            with FramePublisher(frames_at, stream="cam") as publisher:
+                publisher.wait_ready(30)
+                for frame in frames:
+                    publisher.send(frame, timeout=30)
+                assert publisher.flush(30)
+                refused = [(e.frame_id, e.code) for e in publisher.errors]
+            wait_for(lambda: len(listener.results) + len(listener.errors) == 40, 10, "40 answers")
+            history = _fetch_history(service.history_endpoint)
+        finally:
+            service.stop("test over")
+            thread.join(30)
+            listener.stop()
+    assert refused == [(20, "bad_timestamp"), (25, "bad_timestamp")]
+    errors = {e.frame_id: e for e in listener.errors}
+    assert "timestamp 1e+18 is 1e+18 s after the stream's previous frame" in errors[20].text
+    assert "is earlier than the stream's previous frame" in errors[25].text
+    assert [r.frame_id for r in listener.results] == [i for i in range(40) if i not in (20, 25)]
+    # Answers and errors share one numbering, in the frames' order.
+    answers = sorted(listener.results + listener.errors, key=lambda m: m.tag.seq)
+    assert [m.frame_id for m in answers] == list(range(40)) and [m.tag.seq for m in answers] == list(range(1, 41))
+    # The refused frames never touched the stream's state; the restarted clock began a new traverse.
+    alone, again = Localizer(thumb_map), Localizer(thumb_map)
+    expected = [alone.step(f).summary() for f in frames[:30] if f.id not in (20, 25)]
+    expected += [again.step(f).summary() for f in frames[30:]]
+    for result, summary in zip(listener.results, expected):
+        same_answer(result.to_dict(), summary)
+    assert listener.results[-10].window == 1
+    stream = listener.final.streams["cam"]
+    assert (stream.received, stream.answered, stream.errors, stream.restarts) == (40, 38, 2, 1)
+    assert sum("starting a new traverse" in line for line in logs) == 1
+    # The history serves the journal, and refuses what it cannot read.
+    reply, refusal = history
+    assert [wire.decode_answer(item, Limits()).tag.seq for item in reply.items] == list(range(11, 41))
+    assert (reply.first, reply.last) == (1, 40)
+    assert isinstance(refusal, ErrorMessage) and refusal.code == "malformed"
+
+
+def _fetch_history(endpoint: str) -> tuple[wire.History, ErrorMessage]:
+    """A fetch after answer 10, and a garbage request, straight on the history socket."""
+    context = zmq.Context()
+    dealer = context.socket(zmq.DEALER)
+    dealer.setsockopt(zmq.LINGER, 0)
+    dealer.connect(endpoint)
+    try:
+        dealer.send(wire.encode_fetch(wire.Fetch(after=10, max=100)))
+        assert dealer.poll(10_000)
+        reply = wire.decode_history(dealer.recv(), Limits())
+        dealer.send(b"\xc1garbage")
+        assert dealer.poll(10_000)
+        refusal = wire.decode_history(dealer.recv(), Limits())
+    finally:
+        dealer.close()
+        context.term()
+    return reply, refusal  # type: ignore[return-value]
+
+
+def test_streams_are_bounded_and_idle_ones_expire(thumb_map, nordland, tmp_path):
+    winter = list(folder_traverse(nordland / "winter"))[:3]
+    frames, results = endpoints("ipc", tmp_path)
+    config = StreamConfig(frames=frames, results=results, mode="lossless", max_streams=2, stream_expiry=1.0,
+                          stats_interval=0.1)
+    made: list[int] = []
+
+    def new_localizer() -> Localizer:
+        made.append(1)
+        return Localizer(thumb_map)
+
+    service = LocalizerService(new_localizer, config, log=lambda text: None)
+    listener = Collector(results)
+    answers: dict[str, list] = {}
+    with service:
+        thread = threading.Thread(target=service.run, daemon=True)
+        thread.start()
+        publishers = {name: FramePublisher(frames, stream=name) for name in "abc"}
+        try:
+            for publisher in publishers.values():
+                publisher.wait_ready(30)
+
+            def send(stream: str, frame: Frame) -> list[ErrorMessage]:
+                publisher = publishers[stream]
+                before = len(publisher.errors)
+                publisher.send(frame, timeout=30)
+                assert publisher.flush(30)
+                return list(publisher.errors)[before:]
+
+            assert send("a", winter[0]) == [] and send("b", winter[0]) == []
+            refused = send("c", winter[0])
+            assert [(e.code, e.frame_id) for e in refused] == [("too_many_streams", 0)]
+            assert "stream 'c' would be one more than the 2 live streams (max_streams)" in refused[0].text
+            time.sleep(1.2)  # a and b expire
+            assert send("c", winter[1]) == [] and send("a", winter[2]) == []
+            wait_for(lambda: len(listener.results) == 4 and listener.stats and listener.stats[-1].seq == 4, 10,
+                     "four results and the stats after them")
+            stats = listener.stats[-1]
+        finally:
+            for publisher in publishers.values():
+                publisher.close()
+            service.stop("test over")
+            thread.join(30)
+            listener.stop()
+    for result in listener.results:
+        answers.setdefault(result.tag.stream, []).append((result.frame_id, result.tag.stream_seq, result.window))
+    # a's second frame came after its state expired: a new traverse, numbered from 1 again.
+    assert answers == {"a": [(0, 1, 1), (2, 1, 1)], "b": [(0, 1, 1)], "c": [(1, 1, 1)]}
+    assert sorted(stats.streams) == ["a", "c"] and len(made) == 4
+    assert stats.errors_by_code == {"too_many_streams": 1}
+
+
+def test_a_live_listener_that_falls_behind_counts_what_it_missed(thumb_map, nordland, tmp_path):
+    frames, results = endpoints("ipc", tmp_path)
+    config = StreamConfig(frames=frames, results=results, result_hwm=2, stats_interval=0.1)
+    service = LocalizerService(localizer_factory(thumb_map, Config()), config, log=lambda text: None)
+    slow = Collector(results, delay=lambda n: 0.02, hwm=1, rcvbuf=4096)
+    with service:
+        thread = threading.Thread(target=service.run, daemon=True)
+        thread.start()
+        try:
+            with FramePublisher(frames) as publisher:
+                replay(list(folder_traverse(nordland / "winter"))[:800], publisher, Pace("rate", 400.0),
+                       progress=False, wait=30)
+            # Every frame taken is answered or dropped, and the slow listener has heard the last answer's
+            # number: from an answer, or from the stats once its queue drained.
+            def caught_up() -> bool:
+                stats = slow.stats[-1] if slow.stats else None
+                return (stats is not None and stats.received == stats.answered + stats.dropped
+                        and slow.listener.last_seq == stats.seq)
+
+            wait_for(caught_up, 60, "the slow listener to hear of the last answer")
+            last = slow.stats[-1].seq
+        finally:
+            service.stop("test over")
+            thread.join(30)
+            slow.stop()
+    got = len(slow.results) + len(slow.errors)
+    assert slow.listener.missed > 100 and slow.listener.missed + got == last
+    assert slow.listener.recovered == 0  # no journal: nothing to recover from
+    ids = slow.ids()
+    assert ids == sorted(ids)
+
+
+def test_serve_answers_as_match_does_with_the_same_settings(thumb_map, nordland, procs, tmp_path):
+    from lostx.cli import main
+
+    queries = link_frames(sorted((nordland / "winter").iterdir())[:40], tmp_path / "queries")
+    short = tmp_path / "short.toml"
+    short.write_text("[sequence]\nlength = 5\n\n[tracker]\nenabled = false\n")
+    variants = {"default": [], "config": ["--config", str(short)], "single": ["--no-sequence"]}
+    settings = {"default": Config(), "config": load_config(short),
+                "single": dataclasses.replace(Config(), sequence=dataclasses.replace(Config().sequence, enabled=False))}
+    got: dict[str, list[Result]] = {}
+    for name, extra in variants.items():
+        (tmp_path / name).mkdir()
+        frames, results = endpoints("ipc", tmp_path / name)
+        procs.start(f"serve-{name}", serve(thumb_map, frames, results, "lossless", *extra))
+    for name in variants:
+        listener = Collector(f"ipc://{tmp_path / name}/results", topics=("result",))
+        try:
+            with FramePublisher(f"ipc://{tmp_path / name}/frames") as publisher:
+                replay(folder_traverse(queries), publisher, Pace("unlimited"), progress=False, wait=60)
+            wait_for(lambda: len(listener.results) == 40, 30, f"{name}'s results")
+        finally:
+            listener.stop()
+        got[name] = listener.results
+    for option in ("--sequence", None):
+        out = tmp_path / f"match{option or ''}.csv"
+        assert main(["match", str(thumb_map.path), str(queries), "--quiet", "--out", str(out),
+                     *([option] if option else [])]) == 0
+    for name, config in settings.items():
+        localizer = Localizer(thumb_map, config)
+        for result, frame in zip(got[name], folder_traverse(queries)):
+            expected = localizer.step(frame).summary()
+            same_answer(result.to_dict(), expected)
+            assert result.sequence_score == expected["sequence_score"]
+    assert max(r.window for r in got["config"]) == 5
+    assert all(r.sequence_score is None for r in got["single"])
+    # The default answers as `lostx match --sequence`; --no-sequence as `lostx match`.
+    for name, csv_file in (("default", "match--sequence.csv"), ("single", "match.csv")):
+        with open(tmp_path / csv_file) as handle:
+            rows = list(csv.DictReader(handle))
+        assert [int(row["match_index"]) for row in rows] == [r.match_index for r in got[name]]
+    assert [r.match_index for r in got["default"]] != [r.match_index for r in got["single"]]
+
+
+def test_bad_stream_settings_are_one_line_errors(thumb_map, tmp_path, capsys):
+    from lostx.cli import main
+
+    taken = Journal(tmp_path / "taken")
+    (tmp_path / "not-json.jsonl").write_text("hello\n")
+    m = str(thumb_map.path)
+    cases = [
+        (["serve", "--map", m, "--mode", "lossless"], "lossless mode needs a result journal: give --journal DIR"),
+        (["serve", "--map", m, "--max-streams", "0"], "[stream] max_streams must be between 1 and 256, got 0"),
+        (["serve", "--map", m, "--max-streams", "300"], "[stream] max_streams must be between 1 and 256, got 300"),
+        (["serve", "--map", m, "--stream-expiry", "0"], "[stream] stream_expiry must be above 0, got 0.0"),
+        (["serve", "--map", m, "--history", "tcp://127.0.0.1:7"], "--history serves the journal: give --journal DIR"),
+        (["serve", "--map", m, "--mode", "lossless", "--journal", str(tmp_path / "taken"),
+          "--frames", f"ipc://{tmp_path}/f", "--results", f"ipc://{tmp_path}/r"],
+         f"journal {tmp_path / 'taken'} is in use by another service (pid {os.getpid()})"),
+        (["listen", "tcp://127.0.0.1:1", "--resume"], "--resume continues a --jsonl FILE: give the file"),
+        (["listen", "tcp://127.0.0.1:1", "--resume", "--jsonl", str(tmp_path / "not-json.jsonl")],
+         "is not a lostx listen JSON-lines file"),
+        (["replay", str(tmp_path), "--to", "tcp://127.0.0.1:1", "--stream", ""], "--stream must be 1 to 240 characters"),
+    ]
+    try:
+        for argv, message in cases:
+            assert main(argv) == 2, argv
+            err = capsys.readouterr().err
+            assert err.startswith("lostx: error: ") and message in err and err.count("\n") == 1, (argv, err)
+    finally:
+        taken.close()
+
+
+def test_resuming_reads_the_last_answer_of_the_file_and_drops_a_line_cut_short(tmp_path):
+    from lostx.commands.listen import resume_point
+
+    path = tmp_path / "answers.jsonl"
+    assert resume_point(path) == (0, None)
+    lines = [{"type": "result", "seq": 7, "journal": "j1"}, {"type": "error", "seq": 8, "journal": "j1"},
+             {"type": "stats", "seq": 9}]
+    whole = "".join(json.dumps(line) + "\n" for line in lines)
+    path.write_text(whole + '{"type": "result", "seq": 9, "jour')  # killed in the middle of a line
+    assert resume_point(path) == (8, "j1")
+    assert path.read_text() == whole  # the next run appends after the last whole line
+
+
+def test_time_checks_refuse_one_frame_or_start_a_new_traverse():
+    assert check_time(None, 5.0, 10.0) == "ok" and check_time(5.0, None, 10.0) == "ok"
+    assert check_time(5.0, 5.0, 10.0) == "ok" and check_time(5.0, 15.0, 10.0) == "ok"
+    assert check_time(5.0, -5.5, 10.0) == "restart"
+    for timestamp, words in ((15.5, "after the stream's previous frame"), (4.0, "earlier than")):
+        with pytest.raises(ProtocolError, match=words) as info:
+            check_time(5.0, timestamp, 10.0)
+        assert info.value.code == "bad_timestamp"
+
+
+def test_answered_ids_are_bounded_per_stream_and_in_streams():
+    ids = AnsweredIds(per_stream=3, streams=2)
+    for i in range(5):
+        ids.add(("a", i))
+    assert [("a", i) in ids for i in range(5)] == [False, False, True, True, True]
+    ids.add(("b", 0))
+    ids.add(("a", 5))  # a is the most recent now
+    ids.add(("c", 0))  # b goes
+    assert ("a", 5) in ids and ("c", 0) in ids and ("b", 0) not in ids
+
+
 def test_sinks_get_every_frame_and_estimate_and_a_failing_sink_is_not_fatal(thumb_map, nordland, tmp_path):
     seen: list[tuple[int, tuple, int, bool]] = []
 
@@ -443,7 +804,7 @@ def test_sinks_get_every_frame_and_estimate_and_a_failing_sink_is_not_fatal(thum
     frames, results = endpoints("ipc", tmp_path)
     config = dataclasses.replace(StreamConfig(), frames=frames, results=results, mode="lossless")
     logs: list[str] = []
-    service = LocalizerService(Localizer(thumb_map), config, sinks=[broken, Keep()], log=logs.append)
+    service = LocalizerService(lambda: Localizer(thumb_map), config, sinks=[broken, Keep()], log=logs.append)
     listener = Collector(results)
     with service:
         thread = threading.Thread(target=service.run, daemon=True)
@@ -511,8 +872,7 @@ def _replay_into_fake(source, tmp_path: Path, name: str, **kwargs) -> list[wire.
 
 
 def test_replay_is_deterministic_and_loops_with_fresh_ids_and_streams(nordland_subset, tmp_path):
-    source = folder_traverse(nordland_subset)
-    source.files = source.files[:20]
+    source = folder_traverse(nordland_subset).subset(range(20))
     runs = [_replay_into_fake(source, tmp_path, f"run{i}") for i in range(2)]
     for frames in runs:
         assert [m.id for m in frames] == list(range(20))
@@ -574,7 +934,7 @@ def test_a_listener_skips_what_it_cannot_read(tmp_path):
             publisher.send_multipart([b"result", msgpack.packb({"v": wire.VERSION, "type": "result", **summary,
                                                                 "match_index": "three"})])
             publisher.send_multipart([b"result", b"x", b"three parts"])
-            publisher.send_multipart([b"result", wire.encode_result(summary, "s")])
+            publisher.send_multipart([b"result", wire.encode_result(summary, "s", wire.Tag("", 1, 1))])
             got = listener.receive(5)
             assert isinstance(got, Result) and got.frame_id == 4 and got.match_index == 3
             assert listener.bad_messages == 3
@@ -611,9 +971,13 @@ def demo_workdir(tmp_path_factory) -> Path:
     return tmp_path_factory.mktemp("demo")
 
 
-def test_demo_runs_the_whole_loop(demo_workdir, robotcar):
+def test_demo_runs_the_whole_loop(demo_workdir, robotcar, tmp_path):
+    # Run from a folder holding a clone named lostx/, as the README's layout has it: the demo and its
+    # children must import the installed package, not that folder.
+    (tmp_path / "lostx").mkdir()
+    (tmp_path / "lostx" / "README.md").write_text("a clone")
     done = subprocess.run(lostx_command("demo", "--workdir", str(demo_workdir), "--data", str(robotcar.parent),
-                                        "--rate", "3"), capture_output=True, text=True, timeout=300)
+                                        "--rate", "3"), capture_output=True, text=True, timeout=300, cwd=tmp_path)
     assert done.returncode == 0, done.stderr
     rows = [line for line in done.stdout.splitlines() if line.strip().endswith(("exact", "+-1", "wrong"))]
     answered = re.search(r"night -> day \(answered (\d+) of 10", done.stdout)
@@ -621,7 +985,9 @@ def test_demo_runs_the_whole_loop(demo_workdir, robotcar):
                          done.stdout)
     single = re.search(r"single frame: +(\d+)/(\d+) exact, (\d+)/(\d+) within one frame", done.stdout)
     assert answered and sequence and single, done.stdout
-    assert int(answered.group(1)) == int(sequence.group(2)) == int(single.group(2)) == len(rows) >= 5
+    # Lossless: every frame is answered, however loaded the machine.
+    assert int(answered.group(1)) == int(sequence.group(2)) == int(single.group(2)) == len(rows) == 10
+    assert sum("warming up" in row for row in rows) == 2  # the 3-frame window fills on the third frame
     assert int(sequence.group(3)) == len(rows)  # every answer within one frame of the truth (measured)
     assert "the authors' LoST-X on the same frames (single frame): 6/10 exact, 8/10 within one frame" in done.stdout
 

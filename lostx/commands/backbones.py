@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import argparse
 
-from lostx.core.backbones import default_model_paths
-
 
 def register(sub: argparse._SubParsersAction) -> None:
     parser = sub.add_parser("backbones", help="list the semantic backbones and their default model files")
@@ -13,6 +11,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from lostx.core.backbones import default_model_paths
+
     for name, path in default_model_paths().items():
         print(f"{name:24s} {path} ({'found' if path.is_file() else 'missing'})")
     return 0

@@ -14,22 +14,15 @@ import signal
 import tempfile
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import numpy as np
+from lostx.display import state_label
+from lostx.options import add_backbone_options, add_viewer_options, config_from_args, number, viewer_args, whole_number
 
-from lostx.core.config import Config
-from lostx.core.errors import InputError, MapError
-from lostx.core.backbones import load_backbone
-from lostx.core.build import build_map
-from lostx.core.describe import LostDescriber
-from lostx.core.paths import cache_dir, data_dir
-from lostx.core.refmap import ReferenceMap
-from lostx.options import add_backbone_options, add_viewer_options, config_from_args, viewer_args
-from lostx.replay.folder import folder_traverse
-from lostx.stream.client import Listener
-from lostx.stream.errors import StreamError
-from lostx.stream.processes import ProcessGroup, lostx_command
-from lostx.stream.protocol import ErrorMessage, Result, Stats
+if TYPE_CHECKING:
+    from lostx.core.config import Config
+    from lostx.core.refmap import ReferenceMap
+    from lostx.stream.protocol import Result, Stats
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -37,8 +30,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("--data", type=Path, help="folder holding robotcar-daynight/ (default ../shared/data)")
     parser.add_argument("--workdir", type=Path, help="where the demo keeps its map (default ~/.cache/lostx/demo)")
     parser.add_argument("--rebuild", action="store_true", help="rebuild the map even if one is there")
-    parser.add_argument("--rate", type=float, default=4.0, help="replay rate of the night frames in Hz (default 4)")
-    parser.add_argument("--window", type=int, default=3,
+    parser.add_argument("--rate", type=number(0, above=True), default=4.0, metavar="HZ",
+                        help="replay rate of the night frames (default 4; a slower localizer holds the replay back)")
+    parser.add_argument("--window", type=whole_number(1), default=3, metavar="L",
                         help="sequence window in frames (default 3: the sample traverse has only 10 frames)")
     add_backbone_options(parser)
     add_viewer_options(parser)
@@ -47,6 +41,13 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def demo_map(day: Path, out: Path, config: Config, rebuild: bool) -> ReferenceMap:
     """The day map, reused when one built by the same backbone from the same folder is there."""
+    from lostx.core.backbones import load_backbone
+    from lostx.core.build import build_map
+    from lostx.core.describe import LostDescriber
+    from lostx.core.errors import MapError
+    from lostx.core.refmap import ReferenceMap
+    from lostx.replay.folder import folder_traverse
+
     backbone = load_backbone(config.backbone)
     if not rebuild and (out / "manifest.json").is_file():
         try:
@@ -59,17 +60,23 @@ def demo_map(day: Path, out: Path, config: Config, rebuild: bool) -> ReferenceMa
             pass
     traverse = folder_traverse(day)
     summary = build_map(traverse, out, config, LostDescriber(backbone, config.lost),
-                        {"camera": "front", "image_root": str(day.resolve())}, overwrite=True, total=len(traverse))
+                        {"camera": "front", "image_root": str(day.resolve())}, overwrite=True, total=len(traverse),
+                        label="describing the day frames")
     print(f"built {summary.path}: {summary.n_frames} frames, {summary.bytes_per_frame / 1e3:.1f} kB per frame")
     return ReferenceMap.open(out)
 
 
 def run(args: argparse.Namespace) -> int:
+    from lostx.core.errors import InputError
+    from lostx.core.outputs import check_output_folder
+    from lostx.core.paths import cache_dir, data_dir
+    from lostx.replay.folder import folder_traverse
+
     config = config_from_args(args)
     data = (args.data or data_dir()) / "robotcar-daynight"
     if not (data / "day").is_dir() or not (data / "night").is_dir():
         raise InputError(f"demo data not found: {data} should hold day/ and night/ (pass --data or set LOSTX_DATA)")
-    workdir = args.workdir or cache_dir() / "demo"
+    workdir = check_output_folder(args.workdir or cache_dir() / "demo", "--workdir")
     refmap = demo_map(data / "day", workdir / f"robotcar-day-{config.backbone.name}", config, args.rebuild)
     night = folder_traverse(data / "night")
     # SIGTERM ends the demo like Ctrl-C does, through the cleanup below.
@@ -97,7 +104,16 @@ def _backbone_args(args: argparse.Namespace) -> list[str]:
 
 
 def _stream(args: argparse.Namespace, refmap: ReferenceMap, night, tmp: Path) -> tuple[dict[int, Result], Stats | None]:
-    """Service, listener (this process) and replay: the answers by frame id, and the service's final stats."""
+    """Service, listener (this process) and replay: the answers by frame id, and the service's final stats.
+
+    The service runs lossless: on a loaded machine a slower localizer holds the replay back instead of
+    dropping frames, so every night frame is answered. It keeps no journal (``--no-journal``): its one
+    listener is this process, subscribed before the first frame and there until the last answer."""
+    from lostx.stream.client import Listener
+    from lostx.stream.errors import StreamError
+    from lostx.stream.processes import ProcessGroup, lostx_command
+    from lostx.stream.protocol import ErrorMessage, Result, Stats
+
     frames, results = f"ipc://{tmp}/frames", f"ipc://{tmp}/results"
     last_id = len(night) - 1
     answers: dict[int, Result] = {}
@@ -105,12 +121,14 @@ def _stream(args: argparse.Namespace, refmap: ReferenceMap, night, tmp: Path) ->
     with ProcessGroup(log_dir=tmp) as procs, Listener(results) as listener:
         # The service waits for this listener before it takes frames, so no answer is missed.
         procs.start("serve", lostx_command("serve", "--map", str(refmap.path), "--frames", frames,
-                                           "--results", results, "--mode", "live", "--wait-listeners", "1",
+                                           "--results", results, "--mode", "lossless", "--no-journal",
+                                           "--wait-listeners", "1",
                                            "--window", str(args.window), *_backbone_args(args),
                                            *viewer_args(args)))
         procs.start("replay", lostx_command("replay", str(night.root), "--to", frames, "--rate", str(args.rate),
                                             "--quiet", "--wait", "60"))
-        print(f"\nservice on {refmap.path.name}, replaying {len(night)} night frames at {args.rate:g} Hz (live mode)")
+        print(f"\nservice on {refmap.path.name}, replaying {len(night)} night frames at {args.rate:g} Hz "
+              f"(lossless: every frame is answered)")
         print(f"\n{'query':>14s}  {'truth':>5s}  {'match':>5s}  {'single':>6s}  {'state':>13s}  {'conf':>5s}  "
               f"{'corr':>4s}")
         deadline = time.monotonic() + 120
@@ -127,7 +145,7 @@ def _stream(args: argparse.Namespace, refmap: ReferenceMap, night, tmp: Path) ->
                     raise StreamError(f"lostx {name} exited with code {code}:\n{procs.log(name).strip()}")
             if time.monotonic() > deadline:
                 raise StreamError("the service did not answer the last frame within 120 s:\n" + procs.log("serve"))
-        # The last frame of a live stream is never superseded, so once it is answered all is done.
+        # Lossless answers come in order, so once the last frame is answered all are.
         code = procs.stop("serve")
         while final is None:
             message = listener.receive(2.0)
@@ -142,8 +160,8 @@ def _stream(args: argparse.Namespace, refmap: ReferenceMap, night, tmp: Path) ->
 
 def _row(r: Result, night, refmap: ReferenceMap) -> str:
     corr = r.candidates[0].correspondences if r.candidates else 0
-    state = "warming up" if r.warming_up else r.state.replace("_", " ")
-    return (f"{night.files[r.frame_id].name:>14s}  {r.frame_id:>5d}  {r.match_index:>5d}  {r.single_match_index:>6d}  "
+    state = state_label(r)
+    return (f"{night.names[r.frame_id]:>14s}  {r.frame_id:>5d}  {r.match_index:>5d}  {r.single_match_index:>6d}  "
             f"{state:>13s}  {r.confidence:5.2f}  {corr:4d}  {_mark(r.match_index, r.frame_id)}")
 
 
@@ -152,6 +170,8 @@ def _mark(match: int, truth: int) -> str:
 
 
 def _summary(answers: dict[int, Result], n_frames: int, final: Stats | None) -> None:
+    import numpy as np
+
     truth = np.array(list(answers))
     n = len(answers)
 
@@ -161,8 +181,7 @@ def _summary(answers: dict[int, Result], n_frames: int, final: Stats | None) -> 
     sequence = np.array([r.match_index for r in answers.values()])
     single = np.array([r.single_match_index for r in answers.values()])
     localized = sum(r.state == "localized" for r in answers.values())
-    dropped = f"; {final.dropped} dropped by the live service" if final is not None and final.dropped else ""
-    print(f"\nnight -> day (answered {n} of {n_frames}{dropped}):")
+    print(f"\nnight -> day (answered {n} of {n_frames}):")
     print(f"  sequence filter:  {counts(sequence)}; {localized} localized")
     print(f"  single frame:     {counts(single)}")
     print("  the authors' LoST-X on the same frames (single frame): 6/10 exact, 8/10 within one frame")

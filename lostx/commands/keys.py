@@ -5,8 +5,6 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from lostx.stream.sockets import make_keys
-
 
 def register(sub: argparse._SubParsersAction) -> None:
     parser = sub.add_parser("keys", help="make a CurveZMQ key pair (for a service exposed on a network)")
@@ -16,6 +14,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from lostx.core.outputs import check_output_folder
+    from lostx.stream.sockets import make_keys
+
+    check_output_folder(args.directory, "DIRECTORY")
     public, secret = make_keys(args.directory, args.name)
     print(f"public key {public} (give it to the other side)\nsecret key {secret} (keep it; mode 0600)")
     print("service: lostx serve --curve-secret server.key_secret --curve-clients DIR_OF_CLIENT_.key_FILES\n"

@@ -5,29 +5,33 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from lostx.core.backbones import load_backbone
-from lostx.core.build import build_map
-from lostx.core.describe import LostDescriber
-from lostx.core.refmap import ReferenceMap
-from lostx.core.thumbnail import ThumbnailDescriber
-from lostx.options import add_config_options, config_from_args
-from lostx.replay.folder import folder_traverse
+from lostx.options import (
+    add_config_options,
+    add_source_options,
+    config_from_args,
+    print_notes,
+    source_options_from_args,
+)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     parser = sub.add_parser("map", help="build or inspect reference maps")
     verbs = parser.add_subparsers(dest="verb", metavar="VERB", required=True)
 
-    build = verbs.add_parser("build", help="build a reference map from a folder of images (name order)")
-    build.add_argument("images", type=Path, help="folder of the traverse's images")
+    build = verbs.add_parser("build", help="build a reference map from a traverse (images, a bag, a video, ...)")
+    build.add_argument("source", type=Path, help="the traverse: a folder of images (name order), a RobotCar "
+                       "folder, a ROS 2 bag (.mcap), a video, a nuScenes scene (see docs/datasets.md)")
     build.add_argument("--out", type=Path, required=True, help="map folder to write")
-    build.add_argument("--positions", type=Path, help="CSV of positions (file,x,y or lat,lon; optional timestamp)")
-    build.add_argument("--camera", choices=["front", "rear"], default="front", help="camera direction of the traverse")
+    build.add_argument("--positions", type=Path, help="CSV of positions (file,x,y or lat,lon; optional timestamp); "
+                       "RobotCar: the INS CSV")
+    build.add_argument("--camera", choices=["front", "rear"],
+                       help="camera direction of the traverse (default: as the source declares it, else front)")
     build.add_argument("--descriptor", choices=["lost", "thumbnail"], default="lost",
                        help="LoST-X (default) or SeqSLAM thumbnails (no network)")
     build.add_argument("--overwrite", action="store_true", help="replace an existing map at --out")
     build.add_argument("--quiet", action="store_true", help="no progress bar")
-    add_config_options(build)
+    add_source_options(build)
+    add_config_options(build, matching=False)
     build.set_defaults(run=run_build)
 
     info = verbs.add_parser("info", help="describe a map")
@@ -37,15 +41,26 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run_build(args: argparse.Namespace) -> int:
+    from lostx.core.backbones import load_backbone
+    from lostx.core.build import build_map
+    from lostx.core.describe import LostDescriber
+    from lostx.core.outputs import check_output_folder
+    from lostx.core.thumbnail import ThumbnailDescriber
+    from lostx.replay.dataset import open_traverse
+
     config = config_from_args(args)
-    traverse = folder_traverse(args.images, args.positions, camera=args.camera)
+    check_output_folder(args.out, "--out")
+    traverse = open_traverse(args.source, args.format, args.camera, args.positions,
+                             options=source_options_from_args(args))
+    print_notes(traverse.notes)
+    camera = traverse.camera or "front"
     if args.descriptor == "lost":
         describer: LostDescriber | ThumbnailDescriber = LostDescriber(load_backbone(config.backbone), config.lost)
     else:
         describer = ThumbnailDescriber()
-    metadata = {"camera": args.camera, "image_root": str(traverse.root.resolve())}
+    metadata = {"camera": camera, "image_root": str(traverse.root.resolve())}
     summary = build_map(traverse, args.out, config, describer, metadata, overwrite=args.overwrite,
-                        total=len(traverse), progress=not args.quiet)
+                        total=len(traverse), progress=not args.quiet, label=f"describing {traverse.root.name}")
     print(
         f"built {summary.path}: {summary.n_frames} frames ({args.descriptor}) in {summary.seconds:.1f} s, "
         f"{summary.bytes / 1e6:.2f} MB ({summary.bytes_per_frame / 1e3:.1f} kB per frame)"
@@ -54,6 +69,8 @@ def run_build(args: argparse.Namespace) -> int:
 
 
 def run_info(args: argparse.Namespace) -> int:
+    from lostx.core.refmap import ReferenceMap
+
     refmap = ReferenceMap.open(args.map, verify_checksums=args.verify)
     m = refmap.manifest
     backbone = m.get("backbone") or {}
@@ -65,6 +82,13 @@ def run_info(args: argparse.Namespace) -> int:
         print(f"features   {backbone['feature_dim']} channels on a {backbone['grid'][0]}x{backbone['grid'][1]} grid")
     if m.get("classes"):
         print("classes    " + "; ".join(f"{k}: {', '.join(v)}" for k, v in m["classes"].items()))
+    looks = m.get("input")
+    if looks:
+        sizes = " to ".join(dict.fromkeys(f"{w} x {h}" for w, h in zip(looks["width"], looks["height"])))
+        grey = looks["greyscale"]
+        kind = "" if grey is None else (" greyscale" if grey >= 0.5 else " colour")
+        print(f"input      {sizes}{kind} images, mean brightness {looks['brightness'][0]:.0f} to "
+              f"{looks['brightness'][1]:.0f} of 255")
     print(f"positions  {'yes' if refmap.positions is not None else 'no'}")
     print(f"size       {refmap.nbytes / 1e6:.2f} MB ({refmap.nbytes / refmap.n_frames / 1e3:.1f} kB per frame)")
     if args.verify:

@@ -1,4 +1,4 @@
-"""``lostx match MAP QUERY_DIR --out matches.csv``: match a folder of query images against a map."""
+"""``lostx match MAP SOURCE --out matches.csv``: match a traverse of queries (any format) against a map."""
 
 from __future__ import annotations
 
@@ -7,16 +7,22 @@ import csv
 import dataclasses
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import numpy as np
-from tqdm import tqdm
+from lostx.options import (
+    add_config_options,
+    add_source_options,
+    add_viewer_options,
+    close_viewer,
+    config_from_args,
+    print_notes,
+    source_options_from_args,
+    viewer_sink_from_args,
+)
 
-from lostx.core.errors import InputError, MapError
-from lostx.core.estimate import Estimate
-from lostx.core.localizer import Localizer
-from lostx.core.refmap import ReferenceMap
-from lostx.options import add_config_options, add_viewer_options, close_viewer, config_from_args, viewer_sink_from_args
-from lostx.replay.folder import folder_traverse
+if TYPE_CHECKING:
+    from lostx.core.estimate import Estimate
+    from lostx.core.refmap import ReferenceMap
 
 COLUMNS = ["query_index", "query_file", "match_index", "match_file", "score", "confidence", "candidates",
            "distance", "correspondences"]
@@ -25,26 +31,40 @@ HEADING_COLUMNS = ["heading", "heading_confidence"]
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    parser = sub.add_parser("match", help="match a folder of query images against a reference map")
+    parser = sub.add_parser("match", help="match a traverse of queries (images, a bag, a video, ...) against a map")
     parser.add_argument("map", type=Path, help="reference map folder (from `lostx map build`)")
-    parser.add_argument("queries", type=Path, help="folder of query images, matched in name order")
+    parser.add_argument("queries", type=Path, help="the query traverse: a folder of images (name order), a RobotCar "
+                        "folder, a ROS 2 bag (.mcap), a video, a nuScenes scene (see docs/datasets.md)")
     parser.add_argument("--out", type=Path, required=True, help="CSV file to write, one row per query")
-    parser.add_argument("--opposite", action="store_true", help="the query camera faces opposite to the map's")
+    camera = parser.add_mutually_exclusive_group()
+    camera.add_argument("--camera", choices=["front", "rear"],
+                        help="declare the query camera's direction (default: as the source declares it)")
+    camera.add_argument("--opposite", action="store_true", help="the query camera faces opposite to the map's")
     parser.add_argument("--sequence", action="store_true",
-                        help="answer with the online sequence filter and tracker (frames in name order)")
+                        help="answer with the online sequence filter and tracker (frames in traverse order)")
     parser.add_argument("--mirror", action="store_true",
                         help="flip the query images left-right first (tests the flip handling; not an opposite view)")
     parser.add_argument("--descriptor", choices=["lost", "thumbnail"],
                         help="check that the map holds this descriptor (default: whatever it holds)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_source_options(parser, reverse=True)
     add_config_options(parser)
     add_viewer_options(parser)
     parser.set_defaults(run=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from lostx.core.errors import InputError, MapError
+    from lostx.core.localizer import Localizer
+    from lostx.core.outputs import check_output_file
+    from lostx.core.refmap import ReferenceMap
+    from lostx.replay.dataset import open_traverse
+
     config = config_from_args(args)
     config = dataclasses.replace(config, sequence=dataclasses.replace(config.sequence, enabled=args.sequence))
+    check_output_file(args.out, "--out")
     refmap = ReferenceMap.open(args.map)
     if args.descriptor and args.descriptor != refmap.kind:
         raise InputError(f"{args.map} is a {refmap.kind} map, not {args.descriptor}")
@@ -53,24 +73,33 @@ def run(args: argparse.Namespace) -> int:
         # Without --backbone the matcher takes the map's own; a different one named explicitly is a mistake.
         raise MapError(f"{args.map} was built with backbone {built_with}, but --backbone asks for {args.backbone}; "
                        f"use --backbone {built_with} (or leave it out) or rebuild the map")
-    camera = {"front": "rear", "rear": "front"}[refmap.camera] if args.opposite else None
-    queries = folder_traverse(args.queries, camera=camera, mirror=args.mirror)  # type: ignore[arg-type]
+    camera = {"front": "rear", "rear": "front"}[refmap.camera] if args.opposite else args.camera
+    queries = open_traverse(args.queries, args.format, camera, mirror=args.mirror,
+                            options=source_options_from_args(args))
+    if args.reverse:
+        queries = queries.reversed()
+    print_notes(queries.notes)
+    window = config.sequence.length
+    if args.sequence and window > len(queries):
+        print(f"note: the sequence window is {window} frames and {args.queries} has {len(queries)}: the window "
+              f"never fills, so every answer is not_localized; pass --window {len(queries)} or less")
     localizer = Localizer(refmap, config)
     sink = viewer_sink_from_args(args, refmap)
     start = time.perf_counter()
     rows, estimates = [], []
     try:
-        for frame in tqdm(queries, total=len(queries), desc="matching", unit="frame", disable=args.quiet, leave=False):
-            estimate = localizer.step(frame)
-            if sink is not None:
-                sink(frame, estimate)
-            estimates.append(estimate)
-            rows.append(csv_row(frame.name, estimate, refmap, args.sequence))
+        with tqdm(queries, total=len(queries), desc="matching", unit="frame", disable=args.quiet, leave=False) as bar:
+            for frame in bar:
+                estimate = localizer.step(frame)
+                if sink is not None:
+                    sink(frame, estimate)
+                estimates.append(estimate)
+                rows.append(csv_row(frame.name, estimate, refmap, args.sequence))
     finally:
         close_viewer(sink)
     elapsed = time.perf_counter() - start
     write_csv(args.out, COLUMNS + (SEQUENCE_COLUMNS if args.sequence else []) + HEADING_COLUMNS, rows)
-    print(summary_line(estimates, elapsed, args.out))
+    print(summary_line(estimates, elapsed, args.out, window if args.sequence else None))
     return 0
 
 
@@ -97,18 +126,29 @@ def csv_row(name: str, estimate: Estimate, refmap: ReferenceMap, sequence: bool)
 
 
 def write_csv(path: Path, columns: list[str], rows: list[dict[str, object]]) -> None:
+    """Write the CSV whole or not at all: a failed write leaves no partial file behind."""
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".partial")
-    with open(tmp, "w", newline="") as handle:
-        writer = csv.DictWriter(handle, fieldnames=columns)
-        writer.writeheader()
-        writer.writerows(rows)
-    tmp.replace(path)
+    try:
+        with open(tmp, "w", newline="") as handle:
+            writer = csv.DictWriter(handle, fieldnames=columns)
+            writer.writeheader()
+            writer.writerows(rows)
+        tmp.replace(path)
+    finally:
+        tmp.unlink(missing_ok=True)
 
 
-def summary_line(estimates: list[Estimate], elapsed: float, out: Path) -> str:
-    stages = {k: float(np.mean([e.latency_ms.get(k, 0.0) for e in estimates])) for k in estimates[0].latency_ms}
-    detail = ", ".join(f"{k} {v:.1f}" for k, v in stages.items() if k != "total")
+def summary_line(estimates: list[Estimate], elapsed: float, out: Path, window: int | None = None) -> str:
+    """One line: queries, time per frame and per stage (stages that ran), what was localized; ``window``
+    is the sequence window (None: single-frame answers)."""
+    n = len(estimates)
+    stages = {k: sum(e.latency_ms.get(k, 0.0) for e in estimates) / n for k in estimates[0].latency_ms}
+    detail = ", ".join(f"{k} {v:.1f}" for k, v in stages.items() if k != "total" and v > 0)
     localized = sum(e.state == "localized" for e in estimates)
-    return (f"matched {len(estimates)} queries in {elapsed:.1f} s ({1e3 * elapsed / len(estimates):.0f} ms per frame; "
-            f"{detail} ms); {localized} localized; wrote {out}")
+    states = f"{localized} localized"
+    warming = sum(bool(e.warming_up) for e in estimates)
+    if window is not None and warming:
+        states += f", {warming} not_localized while the {window}-frame sequence window filled"
+    return (f"matched {n} queries in {elapsed:.1f} s ({1e3 * elapsed / n:.0f} ms per frame; {detail} ms); "
+            f"{states}; wrote {out}")

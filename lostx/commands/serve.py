@@ -1,14 +1,17 @@
-"""``lostx serve --map MAP``: the localizer service (frames in, results out, over ZeroMQ)."""
+"""``lostx serve --map MAP``: the localizer service (frames in, results out, over ZeroMQ).
+
+It answers like ``lostx match --sequence``: the sequence filter and the tracker run unless
+``--no-sequence`` or ``--no-tracker`` (or the ``--config`` file) turn them off."""
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import signal
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from lostx.core.errors import InputError
-from lostx.core.localizer import Localizer
-from lostx.core.refmap import ReferenceMap
+from lostx.display import drop_line
 from lostx.options import (
     add_config_options,
     add_stream_options,
@@ -17,10 +20,9 @@ from lostx.options import (
     stream_config_from_args,
     viewer_sink_from_args,
 )
-from lostx.sinks import resolve_sink
-from lostx.stream.service import LocalizerService
-from lostx.stream.sinks import JsonlSink
-from lostx.stream.sockets import ServerKeys
+
+if TYPE_CHECKING:
+    from lostx.stream.service import LocalizerService
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -33,39 +35,67 @@ def register(sub: argparse._SubParsersAction) -> None:
                      help="hand every answer to a sink: jsonl=FILE, or package.module:factory[=ARG] (repeatable)")
     sec = parser.add_argument_group("security")
     sec.add_argument("--curve-secret", type=Path, metavar="FILE",
-                     help="the service's secret key (.key_secret from `lostx keys`): CurveZMQ on both sockets")
+                     help="the service's secret key (.key_secret from `lostx keys`): CurveZMQ on all its sockets")
     sec.add_argument("--curve-clients", type=Path, metavar="DIR",
                      help="folder of the public keys (.key) of the producers and listeners allowed in")
     sec.add_argument("--insecure", action="store_true",
                      help="allow binding a non-loopback address without CurveZMQ (trusted networks only)")
     add_config_options(parser)
+    parser.add_argument("--no-sequence", action="store_true",
+                        help="answer each frame on its own, without the sequence filter and tracker "
+                             "(as `lostx match` without --sequence)")
     add_viewer_options(parser)
     parser.set_defaults(run=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    from lostx.core.errors import InputError
+    from lostx.core.outputs import check_output_file, check_output_folder
+    from lostx.core.refmap import ReferenceMap
+    from lostx.sinks import resolve_sink
+    from lostx.stream.service import LocalizerService
+    from lostx.stream.sinks import JsonlSink
+    from lostx.stream.sockets import ServerKeys
+    from lostx.stream.streams import localizer_factory
+
     stop = _SignalStop()
     with stop:
         config = stream_config_from_args(args, config_from_args(args))
+        if args.no_sequence:
+            config = dataclasses.replace(config, sequence=dataclasses.replace(config.sequence, enabled=False))
+        if args.history and config.stream.journal is None:
+            raise InputError("--history serves the journal: give --journal DIR too")
+        if config.stream.mode == "lossless" and config.stream.journal is None and not args.no_journal:
+            raise InputError("lossless mode needs a result journal: give --journal DIR (or --no-journal, and answers "
+                             "a listener had not read when it died are lost)")
+        if args.jsonl:
+            check_output_file(args.jsonl, "--jsonl")
+        if config.stream.journal is not None:
+            check_output_folder(config.stream.journal, "--journal" if args.journal is not None else "[stream] journal")
         keys = None
         if args.curve_secret or args.curve_clients:
             if not (args.curve_secret and args.curve_clients):
                 raise InputError("CurveZMQ needs both --curve-secret and --curve-clients")
             keys = ServerKeys(args.curve_secret, args.curve_clients)
         refmap = ReferenceMap.open(args.map)
-        localizer = Localizer(refmap, config)
+        new_localizer = localizer_factory(refmap, config)
         sinks = [resolve_sink(spec) for spec in args.sink]
         if args.jsonl:
             sinks.append(JsonlSink(args.jsonl))
         viewer = viewer_sink_from_args(args, refmap)
         if viewer is not None:
             sinks.append(viewer)
-        service = LocalizerService(localizer, config.stream, sinks=sinks, keys=keys, insecure=args.insecure)
+        service = LocalizerService(new_localizer, config.stream, sinks=sinks, keys=keys, insecure=args.insecure)
         stop.attach(service)
         with service:
             final = service.run()
+    journal = f"; journal holds answers {final.journal.first}-{final.journal.last}" if final.journal else ""
     service.log(f"answered {final.answered} of {final.received} frames ({final.dropped} dropped, "
-                f"{final.missing} missing, {final.errors} errors) in {final.uptime_s:.1f} s")
+                f"{final.missing} missing, {final.errors} errors) from {service.streams.created} stream(s) "
+                f"in {final.uptime_s:.1f} s{journal}")
+    dropped = drop_line(final)
+    if dropped:
+        service.log(dropped)
     return 0
 
 
