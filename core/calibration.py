@@ -8,12 +8,12 @@ so that each answer is necessarily wrong: an *impostor*. Their margins (sequence
 trajectory's lead over the best trajectory elsewhere; single frame: the uniqueness of the best
 candidate) make the empirical distribution F of wrong answers on this map, with these settings.
 
-An answer's confidence is F(its margin): the share of wrong answers this map produces that would
-have looked less sure. It is an estimate, on the conservative side, of the probability that the
-answer is right: queries from another traverse (another season, the opposite view) are further
-from the map than its own frames, which pushes their wrong answers' margins down, not up
-(docs/metrics.md shows the measured reliability). ``localized`` means confidence >=
-``decision.min_confidence``.
+An answer's confidence is 1 - p, p = (k + 1) / (n + 1) for the k of the n impostors whose margin
+is at least its own: the conservative share of the wrong answers this map produces that look as
+sure. It estimates, on the safe side, the probability that the answer is right (docs/metrics.md
+shows the measured reliability); ``localized`` means confidence >= ``decision.min_confidence``.
+A map too short to produce 999 impostors can therefore never reach the default 0.999: what wrong
+answers look like on it is not known well enough to trust an answer.
 
 The map's own frames are matched as they are stored: no network runs, and the result is saved
 beside the map (``calibration.json``) for the settings it was measured with.
@@ -67,13 +67,10 @@ class Calibration:
 
 
 def _rank(sorted_margins: np.ndarray, value: float) -> float:
-    """Share of the impostors below ``value`` (ties count half); 1 above them all, inf included."""
-    n = len(sorted_margins)
-    if n == 0:
-        return 1.0 if value > 0 else 0.0
-    below = np.searchsorted(sorted_margins, value, side="left")
-    ties = np.searchsorted(sorted_margins, value, side="right") - below
-    return float((below + 0.5 * ties) / n)
+    """1 - p, p = (k + 1) / (n + 1) the conservative share of the n impostors that look at least as sure
+    (k of them): a value above all n scores n / (n + 1), so 0.999 needs at least 999 impostors."""
+    below = int(np.searchsorted(sorted_margins, value, side="left"))
+    return below / (len(sorted_margins) + 1)
 
 
 def settings_key(config: Config) -> dict[str, Any]:
@@ -125,23 +122,38 @@ def _stretches(n_frames: int, budget: int, length: int) -> list[np.ndarray]:
     return [np.arange(start, start + length) for start in starts]
 
 
-def load(path: Path) -> Calibration | None:
-    """The calibration stored beside a map, or None."""
-    file = Path(path) / CALIBRATION_FILE
-    if not file.is_file():
-        return None
-    try:
-        return Calibration.from_dict(json.loads(file.read_text()))
-    except (json.JSONDecodeError, KeyError, TypeError, ValueError):
-        return None  # a damaged calibration is measured again
+KEPT = 8
+"""Calibrations kept beside a map (one per set of settings, the most recent first)."""
+
+
+def load(path: Path, settings: dict[str, Any]) -> Calibration | None:
+    """The calibration stored beside a map for these settings (:func:`settings_key`), or None."""
+    for entry in _stored(path):
+        if entry.get("settings") == settings:
+            try:
+                return Calibration.from_dict(entry)
+            except (KeyError, TypeError, ValueError):
+                return None  # a damaged calibration is measured again
+    return None
 
 
 def store(path: Path, calibration: Calibration) -> None:
-    """Write ``calibration.json`` beside the map atomically (the map itself is not touched)."""
+    """Keep ``calibration`` beside the map (``calibration.json``, written atomically; the map itself is
+    not touched), with up to ``KEPT`` calibrations for other settings."""
+    others = [e for e in _stored(path) if e.get("settings") != calibration.settings]
     file = Path(path) / CALIBRATION_FILE
     tmp = file.with_name(f".{file.name}.{os.getpid()}")
-    tmp.write_text(json.dumps(calibration.to_dict()))
+    tmp.write_text(json.dumps([calibration.to_dict(), *others][:KEPT]))
     os.replace(tmp, file)
+
+
+def _stored(path: Path) -> list[dict[str, Any]]:
+    file = Path(path) / CALIBRATION_FILE
+    try:
+        entries = json.loads(file.read_text())
+    except (OSError, json.JSONDecodeError, UnicodeDecodeError):
+        return []
+    return [e for e in entries if isinstance(e, dict)] if isinstance(entries, list) else []
 
 
 UNCALIBRATED = Calibration(np.zeros(0), np.zeros(0), {})

@@ -148,9 +148,11 @@ class HeadingConfig:
     """Which way the queries view the route relative to the map: found from the evidence, a declared
     camera direction being a prior (see lostx.core.heading)."""
 
-    declared_prior: float = 0.9
-    """Probability given to a declared camera direction (a frame's ``camera``, ``--opposite``) before any
-    evidence. 0.5 ignores declarations; 1.0 trusts them and never weighs the evidence."""
+    declared_prior: float = 0.5
+    """Probability given, before any evidence, to the heading a declared camera implies for a vehicle
+    driving the map's direction (a front camera on a front-camera map: ``same``). 0.5 assumes nothing
+    about the direction of travel (the declared camera then only ties that direction to the heading
+    found); 0.9 for a vehicle known to drive the mapped direction; 1.0 trusts the declaration outright."""
     vote_reliability: float = 0.65
     """How often one frame's vote (its candidates scored with the query's x mirrored against not) points
     the right way; each vote multiplies the odds by reliability / (1 - reliability)."""

@@ -29,16 +29,48 @@ from .frame import HEADINGS, Heading
 
 
 
+class TwoStateFilter:
+    """A discrete Bayes filter over two states fed with votes (> 0 for the second state, < 0 for the first,
+    0 none), each ``reliability`` likely to be right, the state swapping with probability ``switch``."""
+
+    def __init__(self, states: tuple[str, str], reliability: float, switch: float) -> None:
+        self.states = states
+        self.reliability = reliability
+        self.switch = switch
+        self.reset()
+
+    def reset(self, prior: np.ndarray | None = None) -> None:
+        self.belief = np.full(2, 0.5) if prior is None else np.asarray(prior, dtype=np.float64)
+
+    def update(self, vote: float) -> tuple[str, float]:
+        s = self.switch
+        self.belief = predict(self.belief, 0, [s / 2, 1.0 - s, s / 2])  # on two states: a swap with probability s
+        if vote != 0.0:
+            # A split vote (its voters disagreeing) counts for less: reliability shrinks towards 1/2.
+            p = 0.5 + (self.reliability - 0.5) * min(abs(vote), 1.0)
+            self.belief = update(np.array([1.0 - p, p] if vote > 0 else [p, 1.0 - p]), self.belief)
+        return self.answer()
+
+    def answer(self) -> tuple[str, float]:
+        best = int(np.argmax(self.belief))
+        return self.states[best], float(self.belief[best])
+
+
 class HeadingFilter:
     """P(same), P(opposite) over the frames of one traverse."""
 
     def __init__(self, config: HeadingConfig | None = None) -> None:
         self.config = config or HeadingConfig()
+        self._filter = TwoStateFilter(HEADINGS, self.config.vote_reliability, self.config.switch)  # type: ignore[arg-type]
         self.reset()
 
     def reset(self) -> None:
-        self.belief = np.full(len(HEADINGS), 1.0 / len(HEADINGS))
+        self._filter.reset()
         self._declared: Heading | None = None
+
+    @property
+    def belief(self) -> np.ndarray:
+        return self._filter.belief
 
     def update(self, vote: float, declared: Heading | None = None) -> tuple[Heading, float]:
         """Add one frame: its vote (> 0 favours opposite, 0 none) and the heading its camera declares.
@@ -46,19 +78,10 @@ class HeadingFilter:
         cfg = self.config
         if declared is not None and declared != self._declared:
             self._declared = declared
-            self.belief = _prior(declared, cfg.declared_prior)
-        trusted = declared is not None and cfg.declared_prior >= 1.0
-        if not trusted:
-            s = cfg.switch
-            self.belief = predict(self.belief, 0, [s / 2, 1.0 - s, s / 2])  # on two states: a swap with probability s
-            if vote != 0.0:
-                # A split vote (candidates disagreeing) counts for less: reliability shrinks towards 1/2.
-                p = 0.5 + (cfg.vote_reliability - 0.5) * min(abs(vote), 1.0)
-                says_opposite = vote > 0
-                likelihood = np.array([1.0 - p, p] if says_opposite else [p, 1.0 - p])
-                self.belief = update(likelihood, self.belief)
-        best = int(np.argmax(self.belief))
-        return HEADINGS[best], float(self.belief[best])  # type: ignore[return-value]
+            self._filter.reset(_prior(declared, cfg.declared_prior))
+        if declared is not None and cfg.declared_prior >= 1.0:
+            return self._filter.answer()  # type: ignore[return-value]
+        return self._filter.update(vote)  # type: ignore[return-value]
 
 
 def _prior(declared: Heading, strength: float) -> np.ndarray:

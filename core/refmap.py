@@ -333,8 +333,7 @@ class ReferenceMap:
         """The stored calibration measured with these settings, if any (see lostx.core.calibration)."""
         from .calibration import load, settings_key
 
-        stored = load(self.path)
-        return stored if stored is not None and stored.settings == settings_key(config) else None
+        return load(self.path, settings_key(config))
 
     def store_calibration(self, calibration: "Calibration") -> None:
         """Keep a calibration beside the map; a map on a read-only disk simply goes without."""

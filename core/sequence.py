@@ -197,6 +197,13 @@ class SequenceFilter:
         self._best_result = self._best()
         return self._best_result
 
+    def keep_direction(self, sign: int) -> None:
+        """Drop the live trajectories whose reference index runs against ``sign`` (+1 rising, -1 falling):
+        once the direction of travel is known they are no longer plausible."""
+        keep = self._speed * sign >= 0
+        self._anchor_t, self._anchor_r = self._anchor_t[keep], self._anchor_r[keep]
+        self._speed, self._costs = self._speed[keep], self._costs[keep]
+
     def scores(self) -> np.ndarray:
         """Mean cost of every live trajectory over the frames in the window."""
         window = self._costs[:, self.length - len(self._times) :]

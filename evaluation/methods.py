@@ -48,7 +48,9 @@ from lostx.replay.folder import Traverse
 from .catalogue import METHODS, MODES
 from .datasets import DatasetPair
 from .groundtruth import GroundTruth
-from .metrics import Evaluation, evaluate_tolerances
+from .metrics import (
+    Evaluation, OperatingPoint, ReliabilityBin, evaluate_tolerances, operating_point, reliability,
+)
 
 DEFAULT_TOLERANCES = {"frames": (0.0, 1.0, 2.0), "m": (5.0, 10.0, 20.0, 40.0, 80.0)}
 NETWORK_METHODS = ("lostx", "lost", "appearance")
@@ -68,6 +70,22 @@ class Run:
     localized: np.ndarray | None = None
     """Per query, whether the answer was ``localized``."""
     evaluations: list[Evaluation] = field(default_factory=list)
+    """The oracle view: every threshold tried afterwards, per tolerance."""
+    deployed: list[OperatingPoint] = field(default_factory=list)
+    """The deployed view: the ``localized`` answers, per tolerance."""
+    reliability: list[list[ReliabilityBin]] = field(default_factory=list)
+    """Binned confidence against measured precision, per tolerance."""
+    true_heading: str | None = None
+
+    def extras(self, k: int) -> dict[str, float | int]:
+        """The deployed numbers and the heading accuracy, for the report entry of tolerance ``k``."""
+        out: dict[str, float | int] = dict(self.deployed[k].summary()) if self.deployed else {}
+        if self.headings is not None and self.true_heading is not None:
+            right = self.headings == self.true_heading
+            out["heading_right"] = float(right.mean())
+            localized = self.localized if self.localized is not None else np.zeros(len(right), bool)
+            out["heading_right_localized"] = float(right[localized].mean()) if localized.any() else float("nan")
+        return out
 
     @property
     def label(self) -> str:
@@ -238,8 +256,11 @@ def evaluate_pair(
     unit: str | None = None,
     progress: bool = True,
     log: Callable[[str], None] = print,
+    true_heading: str | None = None,
 ) -> tuple[list[Run], list[GroundTruth]]:
-    """Run every method in every mode and evaluate each at every tolerance."""
+    """Run every method in every mode and evaluate each at every tolerance: the oracle view (every
+    threshold tried afterwards) and the deployed one (the ``localized`` answers). ``true_heading``,
+    where known, scores the heading the localizer reported."""
     unknown = [m for m in methods if m not in METHODS]
     if unknown:
         raise InputError(f"unknown method(s) {', '.join(unknown)}; choose from {', '.join(METHODS)}")
@@ -263,5 +284,8 @@ def evaluate_pair(
         for run in runs_of(method, results, refmap, pair.query, config, backbone, modes):
             run.evaluations = evaluate_tolerances(run.predictions, run.confidences, truths, run.candidates,
                                                   higher_is_better=True)
+            run.deployed = [operating_point(run.predictions, run.localized, truth) for truth in truths]
+            run.reliability = [reliability(run.confidences, truth.is_correct(run.predictions)) for truth in truths]
+            run.true_heading = true_heading
             runs.append(run)
     return runs, truths

@@ -300,3 +300,59 @@ def max_f1_by_tolerance(evaluations: Sequence[Evaluation]) -> tuple[np.ndarray, 
     f1 = np.asarray([e.max_f1 for e in evaluations], dtype=np.float64)
     order = np.argsort(tol, kind="stable")
     return tol[order], f1[order]
+
+
+@dataclass(frozen=True)
+class OperatingPoint:
+    """What a deployed system gets: the answers it marked ``localized`` (no threshold chosen afterwards)."""
+
+    n_localized: int
+    n_right: int
+    """Localized answers that are correct."""
+    precision: float
+    """n_right / n_localized (NaN with none localized)."""
+    recall: float
+    """n_right / P, P the recall denominator (as for the oracle recall at 100 % precision)."""
+
+    def summary(self, prefix: str = "localized") -> dict[str, float | int]:
+        return {f"{prefix}": self.n_localized, f"{prefix}_right": self.n_right,
+                f"{prefix}_precision": self.precision, f"{prefix}_recall": self.recall}
+
+
+def operating_point(predictions: np.ndarray, localized: np.ndarray, ground_truth: GroundTruth,
+                    recall_over: RecallOver = "matchable") -> OperatingPoint:
+    """Precision and recall of the ``localized`` answers."""
+    localized = np.asarray(localized, dtype=bool)
+    right = correct_predictions(predictions, ground_truth) & localized
+    n_loc, n_right = int(localized.sum()), int(right.sum())
+    positives = recall_denominator(ground_truth, recall_over)
+    return OperatingPoint(n_loc, n_right, n_right / n_loc if n_loc else float("nan"),
+                          n_right / positives if positives else float("nan"))
+
+
+@dataclass(frozen=True)
+class ReliabilityBin:
+    low: float
+    high: float
+    n: int
+    """Answers whose confidence falls in [low, high) (the last bin includes 1)."""
+    mean_confidence: float
+    precision: float
+    """Share of them that are correct (NaN when the bin is empty)."""
+
+
+def reliability(confidences: np.ndarray, correct: np.ndarray,
+                edges: Sequence[float] = (0.0, 0.5, 0.9, 0.99, 0.999, 1.0)) -> list[ReliabilityBin]:
+    """Binned confidence against measured precision: a confidence that means what it says has, in every
+    bin, a precision at least its mean confidence. The bins are finest near 1, where a robot acts."""
+    confidences = np.asarray(confidences, dtype=np.float64)
+    correct = np.asarray(correct, dtype=bool)
+    out = []
+    for i, (low, high) in enumerate(zip(edges[:-1], edges[1:])):
+        last = i == len(edges) - 2
+        inside = (confidences >= low) & ((confidences <= high) if last else (confidences < high))
+        n = int(inside.sum())
+        out.append(ReliabilityBin(float(low), float(high), n,
+                                  float(confidences[inside].mean()) if n else float("nan"),
+                                  float(correct[inside].mean()) if n else float("nan")))
+    return out

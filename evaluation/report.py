@@ -109,15 +109,31 @@ TABLE_COLUMNS: list[tuple[str, Callable[[dict[str, Any]], str]]] = [
     ("method", lambda e: str(e["method"])),
     ("mode", lambda e: str(e["mode"])),
     ("tolerance", lambda e: quantity(e["tolerance"], e["tolerance_unit"])),
-    ("R@100P %", _percent("recall_at_100p")),
+    ("R@100P oracle %", _percent("recall_at_100p")),
+    ("localized", lambda e: str(e.get("localized", "n/a"))),
+    ("localized prec. %", lambda e: _fmt(e.get("localized_precision", float("nan")), True)),
+    ("localized recall %", lambda e: _fmt(e.get("localized_recall", float("nan")), True)),
     ("max F1 %", _percent("max_f1")),
     ("AUC-PR %", _percent("auc_pr")),
     ("R@1 %", _percent("recall_at_1")),
     ("R@5 %", _percent("recall_at_5")),
     ("R@10 %", _percent("recall_at_10")),
+    ("heading right %", lambda e: _fmt(e.get("heading_right", float("nan")), True)),
     ("queries", lambda e: str(e["n_queries"])),
 ]
 """The markdown table: (header, cell of an entry); the first two columns are text, the rest numbers."""
+
+
+ORACLE_AND_DEPLOYED = (
+    "*R@100P oracle*: recall at 100 % precision with the best threshold chosen after seeing the answers "
+    "(what a PR curve shows; a robot cannot). *localized*: the answers the localizer marked `localized`, "
+    "with the threshold it fixed beforehand (calibrated on the map): their precision and recall are what a "
+    "deployed system gets.\n\n"
+)
+RELIABILITY_NOTE = (
+    "Answers binned by their confidence, and the share of each bin that is right (at the tightest tolerance). "
+    "A confidence that means what it says has a precision at least as high as the bin's confidences.\n\n"
+)
 
 
 def markdown_table(entries: Iterable[dict[str, Any]]) -> str:
@@ -129,17 +145,33 @@ def markdown_table(entries: Iterable[dict[str, Any]]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def reliability_table(rows: Sequence[tuple[str, Sequence[Any]]]) -> str:
+    """``(label, bins)`` per method and mode: answers and measured precision in each confidence bin."""
+    if not rows:
+        return ""
+    bins = rows[0][1]
+    header = ["method"] + [f"[{b.low:g}, {b.high:g}{']' if i == len(bins) - 1 else ')'}" for i, b in enumerate(bins)]
+    lines = ["| " + " | ".join(header) + " |", "|---|" + "|".join(["---:"] * len(bins)) + "|"]
+    for label, row in rows:
+        cells = [f"{_fmt(b.precision, True)} % of {b.n}" if b.n else "-" for b in row]
+        lines.append("| " + " | ".join([label] + cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
 def write_markdown(path: str | Path, entries: Iterable[dict[str, Any]], title: str | None = None,
-                   settings: dict[str, Any] | None = None, figures: Sequence[tuple[str, str | Path]] = ()) -> Path:
-    """``report.md``: the title, the settings that produced the numbers, the table, and the figures
-    (``(caption, file)``, linked relative to the report)."""
+                   settings: dict[str, Any] | None = None, figures: Sequence[tuple[str, str | Path]] = (),
+                   reliability: str = "") -> Path:
+    """``report.md``: the title, the settings that produced the numbers, the table, the reliability
+    of the confidence, and the figures (``(caption, file)``, linked relative to the report)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     parts = [f"# {title}\n"] if title else []
     if settings:
         rows = "".join(f"| {key} | {value} |\n" for key, value in settings.items())
         parts.append(f"## Settings\n\n| setting | value |\n|---|---|\n{rows}")
-    parts.append(("## Results\n\n" if settings or figures else "") + markdown_table(entries))
+    parts.append(("## Results\n\n" if settings or figures else "") + ORACLE_AND_DEPLOYED + markdown_table(entries))
+    if reliability:
+        parts.append("## Reliability of the confidence\n\n" + RELIABILITY_NOTE + reliability)
     if figures:
         parts.append("## Figures\n\n" + "\n".join(
             f"![{caption}]({Path(file).relative_to(path.parent) if Path(file).is_absolute() else file})\n"

@@ -65,6 +65,7 @@ def run(args: argparse.Namespace) -> int:
         plot_max_f1_vs_tolerance,
         plot_pr_curves,
         quantity,
+        reliability_table,
         report_entry,
         write_markdown,
         write_report_json,
@@ -83,8 +84,9 @@ def run(args: argparse.Namespace) -> int:
     )
     print_notes(pair.notes)
     runs, truths = evaluate_pair(pair, config, cache, args.methods, args.modes, args.tolerances, args.unit,
-                                 progress=not args.quiet)
-    entries = [report_entry(r.method, r.mode, e, label=METHODS[r.method]) for r in runs for e in r.evaluations]
+                                 progress=not args.quiet, true_heading="opposite" if args.opposite else "same")
+    entries = [report_entry(r.method, r.mode, e, label=METHODS[r.method], **r.extras(k))
+               for r in runs for k, e in enumerate(r.evaluations)]
     args.out.mkdir(parents=True, exist_ok=True)
     title = f"{pair.reference.name} (reference) vs {pair.query.name} (query)"
     if args.mirror_query:
@@ -103,7 +105,9 @@ def run(args: argparse.Namespace) -> int:
                              f"{title}\n{caption}", styles)
     figures.append((caption, "max_f1_vs_tolerance.png"))
     write_report_json(args.out / "report.json", entries)
-    write_markdown(args.out / "report.md", entries, title, report_settings(args, config, pair, truths), figures)
+    reliability = reliability_table([(r.label, r.reliability[0]) for r in runs])
+    write_markdown(args.out / "report.md", entries, title, report_settings(args, config, pair, truths), figures,
+                   reliability)
     print(markdown_table(entries))
     print(f"wrote {args.out / 'report.md'}, report.json and {len(figures)} figures")
     return 0
