@@ -273,7 +273,7 @@ class Bounds:
         if self.low is None:
             return "a number" if self.high is None else f"at most {self.high:g}"
         if self.high is not None:
-            return f"between {self.low:g} and {self.high:g}"
+            return f"above {self.low:g}, at most {self.high:g}" if self.above else f"between {self.low:g} and {self.high:g}"
         return f"above {self.low:g}" if self.above else f"at least {self.low:g}"
 
     def allows(self, value: float) -> bool:
@@ -290,11 +290,16 @@ LIMITS: dict[str, dict[str, Bounds]] = {
     "backbone": {"threads": _AT_LEAST_1},
     "lost": {"reference_window": _AT_LEAST_1, "query_window": _AT_LEAST_1, "prior_frames": _AT_LEAST_0},
     "verify": {"top_k": _AT_LEAST_1, "uniqueness_exclusion": _AT_LEAST_0},
+    "camera": {"hfov_deg": Bounds(0, 180, above=True), "view_hfov_deg": Bounds(0, 180, above=True),
+               "ignore_top": Bounds(0, 0.9), "ignore_bottom": Bounds(0, 0.9)},
     "sequence": {
-        "length": _AT_LEAST_1, "speeds": Bounds(), "acquire_speeds": Bounds(), "anchors": _AT_LEAST_0,
+        "length": _AT_LEAST_1, "speeds": _AT_LEAST_0, "acquire_speeds": _ABOVE_0, "anchors": _AT_LEAST_0,
         "radius": _AT_LEAST_0, "contrast_window": Bounds(2), "reference_prior": _AT_LEAST_0,
-        "penalty": Bounds(), "exclusion": _AT_LEAST_0, "min_confidence": Bounds(0, 1),
+        "penalty": Bounds(), "exclusion": _AT_LEAST_0,
     },
+    "heading": {"declared_prior": Bounds(0.5, 1), "vote_reliability": Bounds(0.5, 0.999), "switch": Bounds(0, 0.5),
+                "min_confidence": Bounds(0.5, 1)},
+    "decision": {"min_confidence": Bounds(0, 1), "calibration_frames": _AT_LEAST_1},
     "tracker": {
         "gate_sigma": _ABOVE_0, "relocalise_after": _AT_LEAST_1, "lost_after": _AT_LEAST_1,
         "position_sigma": _ABOVE_0, "speed_sigma": _ABOVE_0, "acceleration_sigma": _ABOVE_0,

@@ -51,7 +51,7 @@ from .config import Config
 from .errors import InputError
 from .estimate import Candidate, Estimate, Evidence
 from .frame import Frame, Heading
-from .heading import HeadingFilter, TwoStateFilter
+from .heading import HeadingFilter
 from .images import check_frame
 from .inputcheck import InputCheck
 from .matcher import FrameMatch, MatchResult, PlaceMatcher
@@ -85,10 +85,6 @@ class Localizer:
         self.hubs = ReferenceNormaliser(seq.reference_prior)
         self.tracker = RouteTracker(self.config.tracker)
         self.heading = HeadingFilter(self.config.heading)
-        # Which way along the map the queries travel: a slowly changing state like the heading, voted on by
-        # the sign of each frame's best trajectory.
-        self.direction = TwoStateFilter(("falling", "rising"), self.config.heading.vote_reliability,
-                                        self.config.heading.switch)
         self._last_timestamp: float | None = None
         self.input_check = InputCheck.for_map(refmap.manifest)
 
@@ -99,7 +95,6 @@ class Localizer:
         self.hubs.reset()
         self.tracker.reset()
         self.heading.reset()
-        self.direction.reset()
         self._last_timestamp = None
 
     def step(self, frame: Frame) -> Estimate:
@@ -165,7 +160,6 @@ class Localizer:
         if direction:
             self.sequence.keep_direction(direction)
         seq = self.sequence.update(anchors, costs, speeds)
-        self.direction.update(float(np.sign(seq.speed)) if np.isfinite(seq.speed) else 0.0)
         runner_up = self.sequence.runner_up(seq.position, cfg.exclusion)
         margin = max(0.0, runner_up - seq.score) if np.isfinite(runner_up) else np.inf
         t1 = time.perf_counter()
@@ -201,14 +195,13 @@ class Localizer:
 
         A declared camera ties the heading to the direction of travel: a front camera that views the
         route the same way as a front-camera map drives it the same way; viewing it the opposite way,
-        it drives it the other way (and a rear camera the reverse). Undeclared, the direction is what the
-        trajectories found so far say, once they agree.
+        it drives it the other way (and a rear camera the reverse). Undeclared, both directions are searched:
+        the best trajectory's own sign is no independent evidence (restricting the search to it would
+        only ever confirm it).
         """
-        needed = self.config.heading.min_confidence
-        if frame.camera is not None and sure >= needed:
-            return 1 if (heading == "same") == (frame.camera == self.map.camera) else -1
-        direction, direction_sure = self.direction.answer()
-        return (1 if direction == "rising" else -1) if direction_sure >= needed else 0
+        if frame.camera is None or sure < self.config.heading.min_confidence:
+            return 0
+        return 1 if (heading == "same") == (frame.camera == self.map.camera) else -1
 
     def _plausible_speeds(self, direction: int) -> np.ndarray:
         """Speeds of the trajectories the new frame spawns: the tracker's band, or the acquisition range;

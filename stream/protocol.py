@@ -193,6 +193,7 @@ class Result:
     speed: float | None
     window: int
     warming_up: bool
+    margin: float | None
     heading: str
     heading_confidence: float
     latency_ms: dict[str, float]
@@ -588,7 +589,7 @@ _RESULT: Schema = {
     "single_match_index": (_UINT, True), "candidates": (_ARRAY, True),
     "sequence_score": (_NUMBER.or_nil(), True), "speed": (_NUMBER.or_nil(), True),
     "window": (_UINT, True), "warming_up": (_BOOL, True),
-    "heading": (_STR, True), "heading_confidence": (_NUMBER, True),
+    "margin": (_NUMBER.or_nil(), True), "heading": (_STR, True), "heading_confidence": (_NUMBER, True),
     "latency_ms": (_MAP, True), **_TAG,
 }
 _CANDIDATE: Schema = {
@@ -773,6 +774,7 @@ def _decode_result(message: Mapping[str, Any]) -> Result:
         single_match_index=f.value("single_match_index"), candidates=tuple(candidates),
         sequence_score=_opt_float(f.value("sequence_score")), speed=_opt_float(f.value("speed")),
         window=f.value("window"), warming_up=f.value("warming_up"),
+        margin=_opt_float(f.value("margin")),
         heading=f.value("heading"), heading_confidence=float(f.value("heading_confidence")),
         latency_ms={k: float(v) for k, v in latency.items()}, tag=_decode_tag(f), session=f.value("session", ""),
     )

@@ -71,9 +71,12 @@ def test_broken_toml_is_an_input_error(tmp_path):
         ({"sequence": {"length": 0}}, "[sequence] length must be at least 1, got 0"),
         ({"verify": {"top_k": -2}}, "[verify] top_k must be at least 1, got -2"),
         ({"backbone": {"threads": 0}}, "[backbone] threads must be at least 1, got 0"),
-        ({"sequence": {"min_confidence": 1.5}}, "[sequence] min_confidence must be between 0 and 1, got 1.5"),
+        ({"decision": {"min_confidence": 1.5}}, "[decision] min_confidence must be between 0 and 1, got 1.5"),
+        ({"heading": {"vote_reliability": 0.4}}, "[heading] vote_reliability must be between 0.5 and 0.999, got 0.4"),
+        ({"camera": {"hfov_deg": 0}}, "[camera] hfov_deg must be above 0, at most 180, got 0.0"),
         ({"sequence": {"speeds": []}}, "[sequence] speeds must not be empty"),
-        ({"sequence": {"acquire_speeds": [1.0, float("nan")]}}, "[sequence] acquire_speeds must be a number, got nan"),
+        ({"sequence": {"acquire_speeds": [1.0, float("nan")]}}, "[sequence] acquire_speeds must be above 0, got nan"),
+        ({"sequence": {"speeds": [1.0, -0.5]}}, "[sequence] speeds must be at least 0, got -0.5"),
         ({"tracker": {"gate_sigma": 0}}, "[tracker] gate_sigma must be above 0, got 0.0"),
         ({"stream": {"stats_interval": -1}}, "[stream] stats_interval must be above 0, got -1.0"),
     ],
@@ -90,7 +93,8 @@ def test_every_way_of_making_a_config_checks_the_ranges():
         dataclasses.replace(config, sequence=dataclasses.replace(config.sequence, length=-1))
     with pytest.raises(InputError, match=r"\[verify\] top_k must be at least 1, got 0"):
         Config(verify=dataclasses.replace(config.verify, top_k=0))
-    edge = dataclasses.replace(config, sequence=dataclasses.replace(config.sequence, length=1, min_confidence=1.0))
+    edge = dataclasses.replace(config, sequence=dataclasses.replace(config.sequence, length=1),
+                               decision=dataclasses.replace(config.decision, min_confidence=1.0))
     assert edge.sequence.length == 1  # the ends of a range are valid values
 
 

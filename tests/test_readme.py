@@ -25,5 +25,6 @@ def test_the_python_example_runs_as_written(tmp_path):
     assert all(abs(int(row[1]) - k) <= 1 for k, row in enumerate(rows)), proc.stdout  # measured: all within one
     states = [" ".join(row[2:-1]) for row in rows]
     assert states[:2] == ["warming up", "warming up"]  # the 3-frame window fills on the third frame
-    assert "localized" in states[2:]
+    # Ten map frames leave too few wrong answers to measure: the localizer never claims to be sure here.
+    assert states[2:] == ["not_localized"] * 8
     assert (clone / "day.map" / "manifest.json").is_file()

@@ -53,7 +53,7 @@ def test_markdown_table_rows_in_percent():
     evals = sample_evaluations()
     text = report.markdown_table([report.report_entry("thumbnail", "single", e) for e in evals])
     lines = text.strip().splitlines()
-    assert lines[0].startswith("| method | mode | tolerance | R@100P %")
+    assert lines[0].startswith("| method | mode | tolerance | R@100P oracle % | localized | localized prec. %")
     assert len(lines) == 2 + 3
     assert f"| thumbnail | single | 1 frame | {100 * evals[1].recall_at_100p:.1f} |" in lines[3]
     assert "| thumbnail | single | 2 frames |" in lines[4]

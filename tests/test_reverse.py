@@ -27,11 +27,23 @@ def rows(path):
     return list(csv.DictReader(path.open()))
 
 
-def test_match_reverse_runs_the_queries_backwards(thumb_day, robotcar, tmp_path):
-    """Thumbnail answers depend on the frame alone: reversed, each file gets the answer it got forwards."""
+@pytest.fixture
+def trusted_heading(tmp_path):
+    """Settings under which a single-frame answer depends on the frame alone: the declared camera is trusted,
+    so no heading evidence carries over from frame to frame."""
+    path = tmp_path / "trusted.toml"
+    path.write_text("[heading]\ndeclared_prior = 1.0\n")
+    return path
+
+
+def test_match_reverse_runs_the_queries_backwards(thumb_day, robotcar, tmp_path, trusted_heading):
+    """Reversed, each file gets the answer it got forwards (single frame, the heading given)."""
     forwards, backwards = tmp_path / "f.csv", tmp_path / "b.csv"
-    assert lostx("match", thumb_day, robotcar / "night", "--out", forwards, "--quiet").returncode == 0
-    proc = lostx("match", thumb_day, robotcar / "night", "--out", backwards, "--quiet", "--reverse")
+    given = ("--camera", "front", "--config", trusted_heading)
+    assert lostx("match", thumb_day, robotcar / "night", "--out", forwards, "--quiet", *given).returncode == 0
+    # Reversing turns a declared camera round: declared rear, the reversed frames are declared front, as forwards.
+    proc = lostx("match", thumb_day, robotcar / "night", "--out", backwards, "--quiet", "--reverse",
+                 "--camera", "rear", "--config", trusted_heading)
     assert proc.returncode == 0, proc.stderr
     assert "note: night: frames in reverse order" in proc.stdout
     f, b = rows(forwards), rows(backwards)
@@ -41,11 +53,11 @@ def test_match_reverse_runs_the_queries_backwards(thumb_day, robotcar, tmp_path)
     assert [[r[k] for k in keys] for r in b] == [[r[k] for k in keys] for r in f[::-1]]
 
 
-def test_eval_reverse_keeps_the_ground_truth_on_the_original_frames(robotcar, tmp_path):
+def test_eval_reverse_keeps_the_ground_truth_on_the_original_frames(robotcar, tmp_path, trusted_heading):
     reports = {}
-    for name, extra in (("forwards", []), ("backwards", ["--reverse"])):
+    for name, extra in (("forwards", ["--query-camera", "front"]), ("backwards", ["--reverse", "--query-camera", "rear"])):
         proc = lostx("eval", "--reference", robotcar / "day", "--query", robotcar / "night", "--out", tmp_path / name,
-                     "--methods", "thumbnail", "--modes", "single", "--quiet", *extra)
+                     "--methods", "thumbnail", "--modes", "single", "--quiet", "--config", trusted_heading, *extra)
         assert proc.returncode == 0, proc.stderr
         reports[name] = json.loads((tmp_path / name / "report.json").read_text())
     assert "night (reversed) (query)" in (tmp_path / "backwards" / "report.md").read_text()

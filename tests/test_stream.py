@@ -225,7 +225,7 @@ def test_four_robots_interleaved_on_one_service_get_the_answers_each_gets_alone(
         for result, alone in zip(mine, answers):
             same_answer(result.to_dict(), alone)
         # Not warming up for ever, as a service that reset the localizer at every switch of stream was.
-        assert sum(r.localized for r in mine) == sum(a["state"] == "localized" for a in answers) > 0
+        assert sum(not r.warming_up for r in mine) == sum(not a["warming_up"] for a in answers) > 0
         stats = listener.final.streams[name]
         assert (stats.received, stats.answered, stats.errors, stats.missing) == (len(answers), len(answers), 0, 0)
 
@@ -927,7 +927,7 @@ def test_a_listener_skips_what_it_cannot_read(tmp_path):
             assert publisher.poll(5000) and publisher.recv()[0] == 1  # a subscription
             summary = {"frame_id": 4, "timestamp": None, "state": "localized", "match_index": 3, "match_name": "a",
                        "position": None, "confidence": 0.5, "score": 0.1, "single_match_index": 3, "candidates": [],
-                       "sequence_score": None, "speed": None, "window": 0, "warming_up": False, "heading": "same",
+                       "sequence_score": None, "speed": None, "window": 0, "warming_up": False, "margin": None, "heading": "same",
                        "heading_confidence": 1.0, "latency_ms": {}}
             time.sleep(0.2)
             publisher.send_multipart([b"result", b"\xc1garbage"])

@@ -18,7 +18,7 @@ from PIL import Image
 rr = pytest.importorskip("rerun")
 from rerun.chunk import RrdReader  # noqa: E402
 
-from lostx.core.config import Config  # noqa: E402
+from lostx.core.config import Config, HeadingConfig  # noqa: E402
 from lostx.core.estimate import Estimate  # noqa: E402
 from lostx.core.frame import Frame  # noqa: E402
 from lostx.core.localizer import Localizer  # noqa: E402
@@ -78,9 +78,10 @@ class Recording:
 
 
 def replay(refmap: ReferenceMap, night: Path, out: Path, camera: str = "front", settings: SinkSettings = SYNC,
-           frames: int = 10, positions: np.ndarray | None = None, clock=None) -> list[tuple[Frame, Estimate]]:
+           frames: int = 10, positions: np.ndarray | None = None, clock=None,
+           config: Config | None = None) -> list[tuple[Frame, Estimate]]:
     """Localize the night frames (with timestamps, 0.1 s apart) and log each through a sink into ``out``."""
-    localizer = Localizer(refmap, Config())
+    localizer = Localizer(refmap, config or Config())
     kwargs = {"clock": clock} if clock is not None else {}
     sink = RerunSink(refmap, ViewerOutput(rrd=out), settings, **kwargs)
     seen = []
@@ -202,7 +203,9 @@ def test_images_are_jpegs_and_label_maps_carry_the_class_names(front, day_map):
 
 def test_an_opposite_camera_is_shown_mirrored_and_says_so(day_map, robotcar, tmp_path):
     out = tmp_path / "rear.rrd"
-    seen = replay(day_map, robotcar / "night", out, camera="rear", frames=3)
+    # The declared rear camera trusted outright: the heading is opposite from the first frame.
+    seen = replay(day_map, robotcar / "night", out, camera="rear", frames=3,
+                  config=Config(heading=HeadingConfig(declared_prior=1.0)))
     rec = Recording(out)
     h, w = day_map.grid
     for (frame, est), lines, labels, captions, blob in zip(
