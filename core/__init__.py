@@ -5,7 +5,7 @@ The main entry points::
     from lostx.core import Config, ReferenceMap, Localizer, build_map, load_backbone
 """
 
-from .backbones import Backbone, BackboneInfo, SemanticFrame, backbone_names, load_backbone
+from .backbones import Backbone, BackboneInfo, SemanticFrame, backbone_names, load_backbone, register_backbone
 from .build import BuildSummary, build_map
 from .config import Config, load_config
 from .describe import LostDescriber
@@ -21,5 +21,5 @@ __all__ = [
     "Backbone", "BackboneInfo", "BuildSummary", "Candidate", "Config", "Estimate", "Evidence", "Frame",
     "ImageError", "InputError", "Localizer", "LostDescriber", "LostxError", "MapError", "MatchResult",
     "ModelError", "PlaceMatcher", "ReferenceMap", "SemanticFrame", "ThumbnailDescriber", "backbone_names",
-    "build_map", "load_backbone", "load_config",
+    "build_map", "load_backbone", "load_config", "register_backbone",
 ]

@@ -16,6 +16,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import argparse  # noqa: E402
 import importlib  # noqa: E402
 import sys  # noqa: E402
+import warnings  # noqa: E402
 
 from lostx import __version__  # noqa: E402
 from lostx.core.errors import LostxError  # noqa: E402
@@ -36,8 +37,22 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def show_warning(message, category, filename, lineno, file=None, line=None) -> None:  # noqa: ANN001
+    """lostx's own warnings as one line, ``lostx: warning: ...``, above any progress bar; others as Python shows them."""
+    if not category.__module__.startswith("lostx."):
+        _python_show_warning(message, category, filename, lineno, file, line)
+        return
+    from tqdm import tqdm
+
+    tqdm.write(f"lostx: warning: {message}", file=sys.stderr)
+
+
+_python_show_warning = warnings.showwarning
+
+
 def main(argv: list[str] | None = None) -> int:
     exit_with_parent()  # started by a lostx process (the demo, a test): do not outlive it
+    warnings.showwarning = show_warning
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
