@@ -3,17 +3,15 @@ inspect``, maps that refuse another backbone's features, class presets and the c
 
 from __future__ import annotations
 
-import csv
 import dataclasses
 import json
-import subprocess
-import sys
 import warnings
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from backbonetools import MOSAIC, answers, describe_mosaic, lostx
 from lostx.core.backbones import BackboneInfo, SemanticFrame, load_backbone, preset_classes, read_description
 from lostx.core.backbones.espnet import CITYSCAPES_CLASSES
 from lostx.core.backbones.mosaic import ADE20K_CLASSES
@@ -22,72 +20,30 @@ from lostx.core.coverage import ClassCoverageWarning, coverage_message
 from lostx.core.describe import LostDescriber
 from lostx.core.errors import InputError, MapError, ModelError
 from lostx.core.keypoints import frame_evidence
-from lostx.core.paths import models_dir
 from lostx.core.refmap import MapFrame, MapWriter, ReferenceMap
 from lostx.replay.folder import folder_traverse
 
-MOSAIC = models_dir() / "mosaic-r4-ade20k31-uint8.tflite"
 
-
-def description(**changes: object) -> str:
-    """MOSAIC's description as a user writes it, with ``changes`` (None drops a key)."""
-    keys: dict[str, object] = {
-        "model": "mosaic.tflite",
-        "features": "MobilenetV3/Conv_1/Relu",
-        "scores": "decoder/add",
-        "classes": list(ADE20K_CLASSES),
-        "default_classes": "street",
-    }
-    keys.update(changes)
-    return "".join(f"{key} = {toml_value(value)}\n" for key, value in keys.items() if value is not None)
-
-
-def toml_value(value: object) -> str:
-    if isinstance(value, dict):
-        return "{ " + ", ".join(f"{k} = {toml_value(v)}" for k, v in value.items()) + " }"
-    return json.dumps(value)
-
-
-def described_mosaic(folder: Path, **changes: object) -> Path:
-    """The shared MOSAIC file (linked, never copied) with a TOML description beside it; returns the model path."""
-    folder.mkdir(parents=True, exist_ok=True)
-    model = folder / "mosaic.tflite"
-    if not model.exists():
-        model.symlink_to(MOSAIC)
-    (folder / "mosaic.toml").write_text(description(**changes))
-    return model
-
-
-def lostx(*args: object, cwd: Path | None = None) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "lostx.cli", *map(str, args)], capture_output=True, text=True,
-                          cwd=cwd, timeout=600)
-
-
-def one_line_error(proc: subprocess.CompletedProcess, *fragments: str) -> str:
-    assert proc.returncode != 0 and "Traceback" not in proc.stderr, proc.stderr
-    lines = [line for line in proc.stderr.splitlines() if line.strip()]
-    assert len(lines) == 1 and lines[0].startswith("lostx: error: "), proc.stderr
-    for fragment in fragments:
-        assert fragment in lines[0], lines[0]
-    return lines[0]
-
-
-def matches(path: Path) -> list[tuple[str, str, str]]:
-    return [(row["match_index"], row["score"], row["candidates"]) for row in csv.DictReader(path.open())]
+@pytest.fixture(scope="module")
+def described(tmp_path_factory) -> Path:
+    """The shared MOSAIC model with a TOML description beside it."""
+    return describe_mosaic(tmp_path_factory.mktemp("described"))
 
 
 @pytest.fixture(scope="module")
-def builtin_answers(tmp_path_factory, robotcar) -> list[tuple[str, str, str]]:
-    out = tmp_path_factory.mktemp("builtin")
-    assert lostx("map", "build", robotcar / "day", "--out", out / "day", "--quiet").returncode == 0
-    proc = lostx("match", out / "day", robotcar / "night", "--out", out / "night.csv", "--quiet")
-    assert proc.returncode == 0, proc.stderr
-    return matches(out / "night.csv")
+def tflite_map(described, robotcar) -> Path:
+    """The RobotCar day map built through the generic TFLite backbone, named by the TOML alone."""
+    from lostx.cli import main
+
+    out = described.parent / "day"
+    assert main(["map", "build", str(robotcar / "day"), "--out", str(out), "--backbone", "tflite", "--model",
+                 str(described.with_suffix(".toml")), "--quiet"]) == 0
+    return out
 
 
-def test_mosaic_described_by_toml_gives_the_builtin_answers(robotcar, mosaic, builtin_answers, tmp_path):
-    model = described_mosaic(tmp_path / "models")
-    generic = load_backbone(BackboneConfig(name="tflite", model_path=model))
+def test_mosaic_described_by_toml_gives_the_builtin_answers(robotcar, mosaic, day_map, described, tflite_map,
+                                                            tmp_path, capsys):
+    generic = load_backbone(BackboneConfig(name="tflite", model_path=described))
     assert generic.info.grid == mosaic.info.grid == (32, 32) and generic.info.feature_dim == 448
     assert generic.info.default_classes == mosaic.info.default_classes
     assert generic.info.feature_quantisation == mosaic.info.feature_quantisation
@@ -97,45 +53,34 @@ def test_mosaic_described_by_toml_gives_the_builtin_answers(robotcar, mosaic, bu
             np.testing.assert_array_equal(ours.features, builtin.features)
             np.testing.assert_array_equal(ours.probs, builtin.probs)
 
-    # Built from the TOML itself, matched with only the model file (its TOML beside it) and no --backbone.
-    proc = lostx("map", "build", robotcar / "day", "--out", tmp_path / "day", "--backbone", "tflite",
-                 "--model", model.with_suffix(".toml"), "--quiet")
-    assert proc.returncode == 0, proc.stderr
-    manifest = json.loads((tmp_path / "day" / "manifest.json").read_text())["backbone"]
-    assert (manifest["name"], manifest["feature_tensor"], manifest["grid"]) == ("tflite", "MobilenetV3/Conv_1/Relu",
+    recorded = json.loads((tflite_map / "manifest.json").read_text())["backbone"]
+    assert (recorded["name"], recorded["feature_tensor"], recorded["grid"]) == ("tflite", "MobilenetV3/Conv_1/Relu",
                                                                                 [32, 32])
-    proc = lostx("match", tmp_path / "day", robotcar / "night", "--out", tmp_path / "night.csv", "--model", model,
-                 "--quiet")
-    assert proc.returncode == 0, proc.stderr
-    assert matches(tmp_path / "night.csv") == builtin_answers
-    assert sum(int(m) == k for k, (m, _, _) in enumerate(builtin_answers)) == 6  # the README's 6 / 10
+    # Matched with the model file alone (its TOML beside it) and no --backbone: the map's own backbone
+    # with this --model, not the default backbone's file.
+    assert lostx(capsys, "match", tflite_map, robotcar / "night", "--out", tmp_path / "generic.csv", "--model",
+                 described, "--quiet").code == 0
+    assert lostx(capsys, "match", day_map.path, robotcar / "night", "--out", tmp_path / "builtin.csv",
+                 "--quiet").code == 0
+    found = answers(tmp_path / "generic.csv")
+    assert found == answers(tmp_path / "builtin.csv")
+    assert sum(match == k for k, (match, _) in enumerate(found)) == 6  # the README's 6 / 10
 
-
-def test_match_keeps_model_when_the_map_backbone_is_not_the_default(robotcar, tmp_path):
-    """`--model` without `--backbone` on a map of another backbone than the default is used, not dropped."""
-    model = described_mosaic(tmp_path / "models")
-    assert lostx("map", "build", robotcar / "day", "--out", tmp_path / "day", "--backbone", "tflite", "--model",
-                 model, "--quiet").returncode == 0
-    proc = lostx("match", tmp_path / "day", robotcar / "night", "--out", tmp_path / "n.csv", "--model", model,
-                 "--quiet")
-    assert proc.returncode == 0, proc.stderr
-    assert len(matches(tmp_path / "n.csv")) == 10
-    one_line_error(lostx("match", tmp_path / "day", robotcar / "night", "--out", tmp_path / "x.csv"),
-                   "backbone 'tflite' needs its model", "--model PATH")
+    lostx(capsys, "match", tflite_map, robotcar / "night", "--out", tmp_path / "x.csv").error_line(
+        "backbone 'tflite' needs its model", "--model PATH")
     assert not (tmp_path / "x.csv").exists()
 
 
-def test_map_refuses_features_of_another_layer_from_the_same_backbone_and_file(robotcar, tmp_path):
-    model = described_mosaic(tmp_path / "models")
-    assert lostx("map", "build", robotcar / "day", "--out", tmp_path / "day", "--backbone", "tflite", "--model",
-                 model, "--quiet").returncode == 0
-    # The same name and model file, features read from an earlier layer: 192 channels on a 64 x 64 grid.
-    described_mosaic(tmp_path / "models", features="MobilenetV3/expanded_conv_5/depthwise/Relu")
-    proc = lostx("match", tmp_path / "day", robotcar / "night", "--out", tmp_path / "x.csv", "--model", model)
-    line = one_line_error(proc, "was built with backbone tflite", "'MobilenetV3/Conv_1/Relu' 448 x 32x32",
-                          "'MobilenetV3/expanded_conv_5/depthwise/Relu' 192 x 64x64",
-                          "(feature tensor, feature size, grid differ)", "rebuild the map")
-    assert line.count("md5 b7a7620b8b818d64305b51ab796bfb1d") == 2
+def test_map_refuses_features_of_another_layer_from_the_same_backbone_and_file(robotcar, tflite_map, tmp_path,
+                                                                                capsys):
+    # The same name and model file, its features read from an earlier layer: 192 channels on a 64 x 64 grid.
+    model = describe_mosaic(tmp_path, features="MobilenetV3/expanded_conv_5/depthwise/Relu")
+    line = lostx(capsys, "match", tflite_map, robotcar / "night", "--out", tmp_path / "x.csv", "--model",
+                 model).error_line(
+        "was built with backbone tflite", "'MobilenetV3/Conv_1/Relu' 448 x 32x32",
+        "'MobilenetV3/expanded_conv_5/depthwise/Relu' 192 x 64x64", "(feature tensor, feature size, grid differ)",
+        "rebuild the map")
+    assert line.count("model mosaic.tflite md5 b7a7620b8b818d64305b51ab796bfb1d") == 2
 
 
 def test_map_names_each_part_of_the_backbone_that_differs(tmp_path, rng):
@@ -172,7 +117,7 @@ def test_map_names_each_part_of_the_backbone_that_differs(tmp_path, rng):
     ({"model": "elsewhere.tflite"}, ["describes", "elsewhere.tflite", "not"]),
 ])
 def test_description_errors_name_the_problem(tmp_path, changes, fragments):
-    model = described_mosaic(tmp_path, **changes)
+    model = describe_mosaic(tmp_path, **changes)
     with pytest.raises((ModelError, InputError)) as error:
         load_backbone(BackboneConfig(name="tflite", model_path=model))
     message = str(error.value)
@@ -189,25 +134,25 @@ def test_description_file_errors(tmp_path):
     (tmp_path / "net.toml").write_text("features = [")
     with pytest.raises(ModelError, match="not valid TOML"):
         read_description(model)
-    (tmp_path / "net.toml").write_text(description(model="missing.tflite"))
+    (tmp_path / "net.toml").write_text('model = "missing.tflite"\n')
     with pytest.raises(ModelError, match="model file not found: .*missing.tflite"):
         read_description(tmp_path / "net.toml")
     with pytest.raises(ModelError, match="model file not found"):
         read_description(tmp_path / "absent.tflite")
 
 
-def test_cli_description_error_is_one_line(robotcar, tmp_path):
-    model = described_mosaic(tmp_path, features="MobilenetV3/Conv_1")
-    one_line_error(lostx("map", "build", robotcar / "day", "--out", tmp_path / "m", "--backbone", "tflite",
-                         "--model", model), "no tensor named 'MobilenetV3/Conv_1'")
+def test_cli_description_error_is_one_line(robotcar, tmp_path, capsys):
+    model = describe_mosaic(tmp_path, features="MobilenetV3/Conv_1")
+    lostx(capsys, "map", "build", robotcar / "day", "--out", tmp_path / "m", "--backbone", "tflite", "--model",
+          model).error_line("no tensor named 'MobilenetV3/Conv_1'")
     assert not (tmp_path / "m").exists()
 
 
-def test_inspect_lists_tensors_and_suggests_mosaic_features_and_scores():
-    proc = lostx("backbones", "inspect", MOSAIC)
-    assert proc.returncode == 0, proc.stderr
-    lines = proc.stdout.splitlines()
-    assert any(line.startswith("input   PreprocessedImageTensor  1x512x512x3  uint8") for line in lines)
+def test_inspect_lists_tensors_and_suggests_mosaic_features_and_scores(capsys):
+    ran = lostx(capsys, "backbones", "inspect", MOSAIC)
+    assert ran.code == 0, ran.err
+    lines = ran.out.splitlines()
+    assert "input   PreprocessedImageTensor  1x512x512x3  uint8" in lines
     listed = {line.split()[0]: line.split()[1] for line in lines if line.startswith(("MobilenetV3/", "decoder/"))}
     assert listed["MobilenetV3/Conv_1/Relu"] == "1x32x32x448" and listed["decoder/add"] == "1x128x128x32"
     assert "MobilenetV3/Conv_1/BatchNorm_Fold/bias" not in listed  # weights are not listed
@@ -215,13 +160,13 @@ def test_inspect_lists_tensors_and_suggests_mosaic_features_and_scores():
     assert 'scores = "decoder/add"  # 32 channels on a 128 x 128 grid' in lines
 
 
-def test_inspect_errors(tmp_path):
+def test_inspect_errors(tmp_path, capsys):
     fake = tmp_path / "fake.tflite"
     fake.write_bytes(b"\0" * 4000)
-    one_line_error(lostx("backbones", "inspect", fake), "fake.tflite", "not a loadable TFLite model")
+    lostx(capsys, "backbones", "inspect", fake).error_line("fake.tflite", "not a loadable TFLite model")
     (tmp_path / "net.pt").write_bytes(b"x")
-    one_line_error(lostx("backbones", "inspect", tmp_path / "net.pt"), "reads .tflite", ".onnx")
-    one_line_error(lostx("backbones", "inspect", tmp_path / "none.onnx"), "not found")
+    lostx(capsys, "backbones", "inspect", tmp_path / "net.pt").error_line("reads .tflite", ".onnx")
+    lostx(capsys, "backbones", "inspect", tmp_path / "none.onnx").error_line("not found")
 
 
 def test_presets_resolve_against_each_model():
@@ -266,16 +211,16 @@ def test_coverage_message_is_pure_arithmetic():
     assert coverage_message(shares, names, groups, frames=5, threshold=0.05) is None
 
 
-def test_cli_class_preset_is_recorded_and_its_warning_is_one_line(robotcar, tmp_path):
-    proc = lostx("map", "build", robotcar / "day", "--out", tmp_path / "m", "--class-preset", "indoor", "--quiet")
-    assert proc.returncode == 0, proc.stderr
-    warned = [line for line in proc.stderr.splitlines() if line.strip()]
+def test_cli_class_preset_is_recorded_and_its_warning_is_one_line(robotcar, tmp_path, capsys):
+    ran = lostx(capsys, "map", "build", robotcar / "day", "--out", tmp_path / "m", "--class-preset", "indoor",
+                "--quiet")
+    assert ran.code == 0, ran.err
+    warned = [line for line in ran.err.splitlines() if line.strip()]
     assert len(warned) == 1 and warned[0].startswith("lostx: warning: the descriptor's classes (wall, floor, ceiling)")
     manifest = json.loads((tmp_path / "m" / "manifest.json").read_text())
     assert manifest["classes"] == {"wall": ["wall"], "floor": ["floor"], "ceiling": ["ceiling"]}
-    proc = lostx("map", "build", robotcar / "day", "--out", tmp_path / "e", "--class-preset", "indoor",
-                 "--backbone", "espnetv2-cityscapes")
-    one_line_error(proc, "'indoor' does not fit this model")
+    lostx(capsys, "map", "build", robotcar / "day", "--out", tmp_path / "e", "--class-preset", "indoor",
+          "--backbone", "espnetv2-cityscapes").error_line("'indoor' does not fit this model")
 
 
 class LyingBackbone:
