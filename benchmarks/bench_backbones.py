@@ -19,12 +19,17 @@ after is recorded.
 
 from __future__ import annotations
 
-import common  # noqa: F401  (first: it limits numpy's BLAS threads before numpy loads)
+import os
+
+# Before torch loads: OpenMP threads that spin after each layer would take the cores from the backbone
+# timed next (the backbones take turns); sleeping ones let each be timed alone.
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+import common  # noqa: E402,F401  (first of the rest: it limits numpy's BLAS threads before numpy loads)
 
 import argparse
 import dataclasses
 import itertools
-import os
 import tempfile
 from pathlib import Path
 

@@ -162,5 +162,9 @@ def load_backbone(config: BackboneConfig | None = None) -> Backbone:
                          f"(a callable with an info attribute holding a BackboneInfo; see docs/backbones.md)")
     if info.name != config.name:
         # The map records this name; it must be the one that loads the backbone again.
-        backbone.info = dataclasses.replace(info, name=config.name)
+        try:
+            backbone.info = dataclasses.replace(info, name=config.name)
+        except AttributeError:
+            raise ModelError(f"backbone '{config.name}' calls itself '{info.name}' and its info cannot be set; "
+                             f"make info a plain attribute, or name it '{config.name}'") from None
     return backbone

@@ -7,7 +7,8 @@ from pathlib import Path
 
 from lostx.core.backbones import default_model_paths
 
-NEEDS_MODEL = "--model FILE: a model with its .toml description, or a plugin's own"
+DESCRIBED = ("tflite", "onnx")
+"""The generic backbones: each takes a model file of its own name's suffix, described by a TOML file."""
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -31,9 +32,14 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run_list(args: argparse.Namespace) -> int:
     for name, path in default_model_paths().items():
-        where = NEEDS_MODEL if path is None else f"{path} ({'found' if path.is_file() else 'missing'})"
+        if path is not None:
+            where = f"{path} ({'found' if path.is_file() else 'missing'})"
+        elif name in DESCRIBED:
+            where = f"--model FILE: a .{name} model with its .toml description beside it, or the .toml"
+        else:
+            where = "plugin or registered backbone; --model FILE if it takes one"
         print(f"{name:24s} {where}")
-    print("also: package.module:factory (a factory of your own; see docs/backbones.md)")
+    print("also: package.module:factory (a backbone factory of your own; see docs/backbones.md)")
     return 0
 
 
