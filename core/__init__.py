@@ -11,7 +11,8 @@ does not load the network or the localizer.
 from .lazy import lazy_exports
 
 _EXPORTS = {
-    **dict.fromkeys(("Backbone", "BackboneInfo", "SemanticFrame", "backbone_names", "load_backbone"), ".backbones"),
+    **dict.fromkeys(("Backbone", "BackboneInfo", "SemanticFrame", "backbone_names", "load_backbone",
+                      "register_backbone"), ".backbones"),
     **dict.fromkeys(("BuildSummary", "build_map"), ".build"),
     **dict.fromkeys(("Config", "load_config"), ".config"),
     "LostDescriber": ".describe",

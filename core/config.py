@@ -37,11 +37,13 @@ class BackboneConfig:
     """Which semantic segmentation network describes the frames."""
 
     name: str = "mosaic-ade20k"
-    """Registered backbone name (``lostx backbones`` lists them)."""
+    """Backbone name (``lostx backbones`` lists them), a plugin's name, or ``package.module:factory``."""
     model_path: Path | None = None
-    """Model file; ``None`` looks in the models folder (``$LOSTX_MODELS`` or ``../shared/models``)."""
-    device: str = "cpu"
-    """``cpu``, ``cuda`` or ``cuda:N`` for PyTorch backbones; TFLite backbones run on the CPU."""
+    """Model file (for ``tflite`` and ``onnx``: the model's TOML description, or the model with it beside);
+    ``None`` looks in the models folder (``$LOSTX_MODELS`` or ``../shared/models``)."""
+    device: str = "auto"
+    """``auto`` (a CUDA GPU where the runtime has one, else the CPU), ``cpu``, ``cuda`` or ``cuda:N``, for the
+    PyTorch and ONNX backbones; TFLite backbones run on the CPU."""
     threads: int = 2
     """CPU threads for inference."""
     fit: Fit = "squash"
@@ -70,7 +72,14 @@ class LostConfig:
 
     classes: dict[str, tuple[str, ...]] | None = None
     """Semantic classes of the descriptor: name -> the model's class names it groups.
-    ``None`` uses the backbone's own default (road, building, vegetation)."""
+    ``None`` uses ``class_preset``, else the backbone's own default (road, building, vegetation)."""
+    class_preset: str | None = None
+    """Descriptor classes by name: ``street`` (road, building, vegetation) or ``indoor`` (wall, floor,
+    ceiling), as groups of whatever the model calls them. ``classes``, when given, is used instead."""
+    coverage_frames: int = 5
+    """The first this many frames of a map build or a stream are checked for class coverage."""
+    coverage_warning: float = 0.2
+    """Warn (once) when the descriptor's classes label less than this share of those frames' feature grids."""
     reference_window: int = 15
     """Class means mu_s of a map frame are averaged over this many frames centred on it."""
     query_window: int = 1
@@ -288,7 +297,10 @@ _AT_LEAST_0, _AT_LEAST_1, _ABOVE_0 = Bounds(0), Bounds(1), Bounds(0, above=True)
 
 LIMITS: dict[str, dict[str, Bounds]] = {
     "backbone": {"threads": _AT_LEAST_1},
-    "lost": {"reference_window": _AT_LEAST_1, "query_window": _AT_LEAST_1, "prior_frames": _AT_LEAST_0},
+    "lost": {
+        "coverage_frames": _AT_LEAST_0, "coverage_warning": Bounds(0, 1), "reference_window": _AT_LEAST_1,
+        "query_window": _AT_LEAST_1, "prior_frames": _AT_LEAST_0,
+    },
     "verify": {"top_k": _AT_LEAST_1, "uniqueness_exclusion": _AT_LEAST_0},
     "camera": {"hfov_deg": Bounds(0, 180, above=True), "view_hfov_deg": Bounds(0, 180, above=True),
                "ignore_top": Bounds(0, 0.9), "ignore_bottom": Bounds(0, 0.9)},

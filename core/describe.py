@@ -2,15 +2,18 @@
 
 from __future__ import annotations
 
+import warnings
 from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
 
-from .backbones import Backbone, SemanticFrame
+from .backbones import Backbone, BackboneInfo, SemanticFrame
+from .backbones.presets import preset_classes
 from .classes import ClassGroups
 from .config import LostConfig
-from .errors import InputError
+from .coverage import ClassCoverageWarning, CoverageCheck
+from .errors import InputError, ModelError
 from .keypoints import KeypointEvidence, frame_evidence
 from .lost import class_means, gem_pool, lost_descriptor, window_means
 
@@ -38,14 +41,23 @@ class LostDescriber:
         self.backbone = backbone
         self.config = config or LostConfig()
         info = backbone.info
-        self.groups = ClassGroups.from_spec(self.config.classes or info.default_classes, info.class_names)
+        self.groups = ClassGroups.from_spec(descriptor_classes(self.config, info), info.class_names)
         if self.config.reference_window < 1 or self.config.query_window < 1:
             raise InputError("class-mean windows must be at least 1 frame")
+        if self.config.coverage_frames < 0 or not 0.0 <= self.config.coverage_warning <= 1.0:
+            raise InputError("[lost] coverage_frames must be 0 or more and coverage_warning between 0 and 1")
+        self.coverage = CoverageCheck(info.class_names, self.groups.spec(), self.config.coverage_frames,
+                                      self.config.coverage_warning)
 
     def __call__(self, image: np.ndarray) -> DescribedFrame:
         return self.from_semantic(self.backbone(image))
 
     def from_semantic(self, semantic: SemanticFrame) -> DescribedFrame:
+        check_semantic(semantic, self.backbone.info)
+        if not self.coverage.done:
+            message = self.coverage.add(semantic.labels())
+            if message:
+                warnings.warn(message, ClassCoverageWarning, stacklevel=2)
         d, h, w = semantic.features.shape
         features = semantic.features.reshape(d, h * w)
         grouped = self.groups.group(semantic.probs).reshape(-1, h * w)
@@ -66,6 +78,30 @@ class LostDescriber:
     def descriptor(self, frame: DescribedFrame, means: np.ndarray) -> np.ndarray:
         """Eq. 1 with the chosen class means (the frame's own, or a window's)."""
         return lost_descriptor(frame.features, frame.group_probs, means)
+
+
+def descriptor_classes(config: LostConfig, info: BackboneInfo) -> dict[str, tuple[str, ...]]:
+    """The descriptor's classes: the configured groups, else the configured preset, else the backbone's default."""
+    if config.classes:
+        return config.classes
+    if config.class_preset:
+        return preset_classes(config.class_preset, info.class_names)
+    return info.default_classes
+
+
+def check_semantic(semantic: SemanticFrame, info: BackboneInfo) -> None:
+    """A backbone's output must have the shapes its info promises (a map holds those)."""
+    grid = tuple(info.grid)
+    expected = ((info.feature_dim, *grid), (len(info.class_names), *grid))
+    if (semantic.features.shape, semantic.probs.shape) != expected:
+        raise ModelError(
+            f"backbone {info.name} gave features {_dims(semantic.features.shape)} and probabilities "
+            f"{_dims(semantic.probs.shape)}, but its info promises {_dims(expected[0])} and {_dims(expected[1])}"
+        )
+
+
+def _dims(shape: tuple[int, ...]) -> str:
+    return " x ".join(map(str, shape))
 
 
 class TrailingMeans:

@@ -191,6 +191,11 @@ class InputCheck:
     def for_map(cls, manifest: dict[str, Any]) -> "InputCheck":
         return cls(InputProfile.from_dict(manifest.get("input")))
 
+    @property
+    def compares_labels(self) -> bool:
+        """The map records how often the network gave each label, and the query's labels are compared with it."""
+        return len(self._label_sum) > 0
+
     def __call__(self, frame_id: int, image: np.ndarray, labels: np.ndarray | None = None) -> None:
         self._seen += 1
         if self.profile is None or len(self.reported) == 4:

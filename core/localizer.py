@@ -41,6 +41,7 @@ next good frame.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 
 import numpy as np
@@ -73,7 +74,14 @@ class Localizer:
         stored one, or measured now (and stored beside the map) when it has none for them."""
         self.map = refmap
         self.config = config or Config()
-        self.matcher = PlaceMatcher(refmap, self.config, backbone)
+        self.input_check = InputCheck.for_map(refmap.manifest)
+        matcher_config = self.config
+        if self.input_check.compares_labels:
+            # The input check compares the query's labels with the map's own and warns once naming both; the
+            # class-coverage check (whose advice is for choosing a map's classes) would report the same frames again.
+            matcher_config = dataclasses.replace(matcher_config,
+                                                 lost=dataclasses.replace(matcher_config.lost, coverage_frames=0))
+        self.matcher = PlaceMatcher(refmap, matcher_config, backbone)
         if calibration is None:
             calibration = refmap.calibration(self.config)
             if calibration is None:
@@ -86,7 +94,6 @@ class Localizer:
         self.tracker = RouteTracker(self.config.tracker)
         self.heading = HeadingFilter(self.config.heading)
         self._last_timestamp: float | None = None
-        self.input_check = InputCheck.for_map(refmap.manifest)
 
     def reset(self) -> None:
         """Forget everything seen so far (start of a new traverse)."""

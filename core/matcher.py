@@ -10,7 +10,7 @@ import numpy as np
 
 from .backbones import Backbone, load_backbone
 from .camera import Geometry
-from .config import BackboneConfig, Config, LostConfig
+from .config import Config, LostConfig
 from .describe import LostDescriber, TrailingMeans
 from .errors import MapError
 from .frame import Heading
@@ -148,11 +148,9 @@ class PlaceMatcher:
         self.describer: LostDescriber | ThumbnailDescriber
         if refmap.kind == "lost":
             if backbone is None:
+                # The map's own backbone, with the model file, device and threads the configuration gives.
                 name = (refmap.backbone or {}).get("name", self.config.backbone.name)
-                cfg = self.config.backbone
-                if cfg.name != name:
-                    cfg = BackboneConfig(name=name, model_path=None, device=cfg.device, threads=cfg.threads)
-                backbone = load_backbone(cfg)
+                backbone = load_backbone(dataclasses.replace(self.config.backbone, name=name))
             refmap.check_backbone(backbone.info)
             lost_cfg = self.config.lost
             classes = refmap.manifest.get("classes")

@@ -176,6 +176,20 @@ class MapWriter:
         return arrays
 
 
+BACKBONE_IDENTITY = {
+    "name": "name", "model_md5": "model", "feature_tensor": "feature tensor", "feature_dim": "feature size",
+    "grid": "grid",
+}
+"""What a map records of its backbone that a query backbone must match, and how errors call each."""
+
+
+def _identity(backbone: dict[str, Any]) -> str:
+    h, w = backbone.get("grid", ("?", "?"))
+    tensor = f" {backbone['feature_tensor']!r}" if backbone.get("feature_tensor") else ""
+    return (f"{backbone.get('name')} (model {backbone.get('model_file')} md5 {backbone.get('model_md5')}, "
+            f"features{tensor} {backbone.get('feature_dim')} x {h}x{w})")
+
+
 def _backbone_dict(info: BackboneInfo | None) -> dict[str, Any] | None:
     if info is None:
         return None
@@ -345,15 +359,19 @@ class ReferenceMap:
             pass
 
     def check_backbone(self, info: BackboneInfo) -> None:
-        """Refuse queries described by another backbone than the one that built the map."""
+        """Refuse queries described by another backbone than the one that built the map: another name, model
+        file, feature tensor, feature size or grid is a one-line error naming both sides."""
         mine = self.backbone or {}
         if self.kind != "lost":
             raise MapError(f"{self.path} is a {self.kind} map; it takes no backbone (use --descriptor {self.kind})")
-        if mine.get("name") != info.name or mine.get("model_md5") != info.model_md5:
+        theirs = _backbone_dict(info) or {}
+        # Maps from before the feature tensor was recorded do not compare it.
+        differ = [key for key in BACKBONE_IDENTITY if key in mine and mine[key] != theirs[key]]
+        if differ:
             raise MapError(
-                f"{self.path} was built with backbone {mine.get('name')} (model md5 {mine.get('model_md5')}), "
-                f"but the query backbone is {info.name} (model md5 {info.model_md5}); "
-                f"use --backbone {mine.get('name')} or rebuild the map"
+                f"{self.path} was built with backbone {_identity(mine)}, but the query backbone is "
+                f"{_identity(theirs)} ({', '.join(BACKBONE_IDENTITY[key] for key in differ)} differ); "
+                f"use --backbone {mine.get('name')} with its model, or rebuild the map"
             )
 
     def evidence(self, indices: np.ndarray | list[int]) -> KeypointEvidence:

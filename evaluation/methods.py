@@ -99,7 +99,10 @@ def _fingerprint(traverse: Traverse, extra: dict) -> str:
 
 def _settings_key(config: Config, backbone: Backbone) -> dict:
     lost = dataclasses.asdict(config.lost)
-    return {"model": backbone.info.model_md5, "backbone": backbone.info.name, "lost": lost}
+    info = backbone.info
+    # One model file described twice (another feature tensor or input size) gives other features.
+    features = [info.feature_tensor, info.feature_dim, list(info.grid)]
+    return {"model": info.model_md5, "backbone": info.name, "features": features, "lost": lost}
 
 
 def reference_maps(pair: DatasetPair, config: Config, cache: Path, methods: Sequence[str],

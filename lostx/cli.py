@@ -87,8 +87,12 @@ def _close_progress_bars() -> None:
 
 
 def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:  # noqa: ANN001
-    """Warnings as one line each, printed above any progress bar."""
-    text = f"lostx: warning: {message}"
+    """Warnings printed above any progress bar: lostx's own as one line, ``lostx: warning: ...``; those of
+    other libraries as Python shows them (with where they come from)."""
+    if category.__module__.startswith("lostx."):
+        text = f"lostx: warning: {message}"
+    else:
+        text = warnings.formatwarning(message, category, filename, lineno, line).rstrip("\n")
     tqdm = sys.modules.get("tqdm")
     if tqdm is not None:
         tqdm.tqdm.write(text, file=sys.stderr)

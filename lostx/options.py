@@ -10,6 +10,7 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from lostx.core.backbones.presets import PRESETS
 from lostx.core.config import Config, load_config
 
 DEFAULTS = Config()
@@ -51,11 +52,18 @@ def number(minimum: float = 0.0, above: bool = False):
 
 def add_backbone_options(parser: argparse.ArgumentParser) -> None:
     group = parser.add_argument_group("backbone")
-    group.add_argument("--backbone", help="semantic backbone name (see `lostx backbones`)")
-    group.add_argument("--model", type=Path, help="model file of the backbone (default: in ../shared/models)")
-    group.add_argument("--device", help="cpu, cuda or cuda:N (PyTorch backbones)")
+    group.add_argument("--backbone", help="semantic backbone: a name from `lostx backbones`, a plugin's name, or "
+                                          "package.module:factory")
+    group.add_argument("--model", type=Path, help="model file of the backbone (default: in ../shared/models); for "
+                                                   "tflite and onnx, the model's .toml description or the model "
+                                                   "with it beside")
+    group.add_argument("--device", help=f"auto, cpu, cuda or cuda:N (PyTorch and ONNX backbones; default "
+                                        f"{DEFAULTS.backbone.device})")
     group.add_argument("--threads", type=whole_number(1), metavar="N",
                        help=f"CPU threads for the network (default {DEFAULTS.backbone.threads})")
+    group.add_argument("--class-preset", choices=sorted(PRESETS),
+                       help="descriptor classes by name: street (road, building, vegetation) or indoor (wall, floor, "
+                            "ceiling); default: the backbone's own")
 
 
 def add_config_options(parser: argparse.ArgumentParser, matching: bool = True) -> None:
@@ -80,6 +88,10 @@ def config_from_args(args: argparse.Namespace) -> Config:
         value = getattr(args, option, None)
         if value is not None:
             backbone = dataclasses.replace(backbone, **{field: value})
+    lost = config.lost
+    if getattr(args, "class_preset", None):
+        # On the command line the preset overrides the classes of a --config file.
+        lost = dataclasses.replace(lost, class_preset=args.class_preset, classes=None)
     verify = config.verify
     if getattr(args, "scoring", None):
         verify = dataclasses.replace(verify, scoring=args.scoring)
@@ -90,7 +102,8 @@ def config_from_args(args: argparse.Namespace) -> Config:
         sequence = dataclasses.replace(sequence, length=args.window)
     if getattr(args, "no_tracker", False):
         tracker = dataclasses.replace(tracker, enabled=False)
-    return dataclasses.replace(config, backbone=backbone, verify=verify, sequence=sequence, tracker=tracker)
+    return dataclasses.replace(config, backbone=backbone, lost=lost, verify=verify, sequence=sequence,
+                               tracker=tracker)
 
 
 SOURCE_FORMATS = ("folder", "robotcar", "bag", "video", "nuscenes")

@@ -29,7 +29,7 @@ ROAD, BUILDING, VEGETATION = (CITYSCAPES_CLASSES.index(c) for c in ("road", "bui
 def espnet() -> ESPNetv2Backbone:
     if not MODEL.is_file():
         pytest.fail(f"model missing: {MODEL} (set LOSTX_MODELS to the folder holding it)")
-    backbone = load_backbone(BackboneConfig(name=NAME))
+    backbone = load_backbone(BackboneConfig(name=NAME, device="cpu"))
     assert isinstance(backbone, ESPNetv2Backbone)
     return backbone
 
@@ -179,12 +179,13 @@ def test_training_checkpoint_wrapper_is_unwrapped(tmp_path):
 
 
 def test_bad_device():
-    with pytest.raises(InputError, match="'tpu' is not one of cpu, cuda, cuda:N"):
+    with pytest.raises(InputError, match="'tpu' is not one of auto, cpu, cuda, cuda:N"):
         load_backbone(BackboneConfig(name=NAME, device="tpu"))
 
 
 def test_cuda_runs_on_the_gpu_or_says_there_is_none(espnet, robotcar):
     image = read_image(robotcar / "day" / "0000048.png")
+    assert load_backbone(BackboneConfig(name=NAME)).device.type == ("cuda" if torch.cuda.is_available() else "cpu")
     if not torch.cuda.is_available():
         with pytest.raises(ModelError) as caught:
             load_backbone(BackboneConfig(name=NAME, device="cuda"))

@@ -20,7 +20,6 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 
-
 @dataclass(frozen=True)
 class Quantisation:
     """Affine uint8 quantisation of a tensor: real = scale * (q - zero_point)."""
@@ -43,6 +42,8 @@ class BackboneInfo:
     default_classes: dict[str, tuple[str, ...]]
     feature_quantisation: Quantisation | None = None
     """Set when the features are exactly representable as uint8 (a quantised model)."""
+    feature_tensor: str = ""
+    """The network tensor the features are read from."""
     input_size: tuple[int, int] | None = None
     """(width, height) the network takes frames at (None: any)."""
 

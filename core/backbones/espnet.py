@@ -64,6 +64,8 @@ INPUT_SIZE = (768, 384)
 """(width, height) every frame is resized to. Three quarters of the 1024 x 512 training resolution: the same
 day labels on RobotCar, far better night labels, less than half the time (docs/backbones.md)."""
 HINT = "pass the ESPNetv2 Cityscapes weights with --model PATH"
+FEATURE_TENSOR = "base_net.level4"
+"""The module whose output LoST-X reads: the last encoder level."""
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)
 
@@ -349,12 +351,15 @@ class ESPNetv2Segmentation(nn.Module):
 
 
 def torch_device(name: str) -> torch.device:
-    """``cpu``, ``cuda`` or ``cuda:N`` as a torch device; an error if that GPU is not here."""
+    """``auto`` (a CUDA GPU where PyTorch sees one, else the CPU), ``cpu``, ``cuda`` or ``cuda:N`` as a torch
+    device; an error if that GPU is not here."""
+    if name == "auto":
+        return torch.device("cuda", 0) if torch.cuda.is_available() else torch.device("cpu")
     if name == "cpu":
         return torch.device("cpu")
     match = re.fullmatch(r"cuda(?::(\d+))?", name)
     if match is None:
-        raise InputError(f"device {name!r} is not one of cpu, cuda, cuda:N")
+        raise InputError(f"device {name!r} is not one of auto, cpu, cuda, cuda:N")
     if not torch.cuda.is_available():
         raise ModelError(f"device {name!r} was asked for, but PyTorch {torch.__version__} sees no CUDA GPU here; "
                          "use --device cpu")
@@ -431,6 +436,7 @@ class ESPNetv2Backbone:
             grid=(height // 16, width // 16),
             class_names=CITYSCAPES_CLASSES,
             default_classes=DEFAULT_CLASSES,
+            feature_tensor=FEATURE_TENSOR,
             input_size=INPUT_SIZE,
         )
 

@@ -40,7 +40,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def demo_map(day: Path, out: Path, config: Config, rebuild: bool) -> ReferenceMap:
-    """The day map, reused when one built by the same backbone from the same folder is there."""
+    """The day map, reused when one built by the same backbone and descriptor classes from the same folder is
+    there."""
     from lostx.core.backbones import load_backbone
     from lostx.core.build import build_map
     from lostx.core.describe import LostDescriber
@@ -49,17 +50,19 @@ def demo_map(day: Path, out: Path, config: Config, rebuild: bool) -> ReferenceMa
     from lostx.replay.folder import folder_traverse
 
     backbone = load_backbone(config.backbone)
+    describer = LostDescriber(backbone, config.lost)
     if not rebuild and (out / "manifest.json").is_file():
         try:
             refmap = ReferenceMap.open(out)
             refmap.check_backbone(backbone.info)
-            if refmap.manifest.get("image_root") == str(day.resolve()):
+            manifest = refmap.manifest
+            if manifest.get("image_root") == str(day.resolve()) and manifest.get("classes") == describer.groups.spec():
                 print(f"reusing the map in {out}")
                 return refmap
         except MapError:
             pass
     traverse = folder_traverse(day)
-    summary = build_map(traverse, out, config, LostDescriber(backbone, config.lost),
+    summary = build_map(traverse, out, config, describer,
                         {"camera": "front", "image_root": str(day.resolve())}, overwrite=True, total=len(traverse),
                         label="describing the day frames")
     print(f"built {summary.path}: {summary.n_frames} frames, {summary.bytes_per_frame / 1e3:.1f} kB per frame")

@@ -1,0 +1,41 @@
+"""Named sets of descriptor classes for the common scenes, resolved against a model's own class names.
+
+A preset lists, for each descriptor class, the class names different training
+sets use for it (ADE20K says tree, plant and grass where Cityscapes says
+vegetation); a model's groups keep the names it has.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+from ..errors import InputError
+
+PRESETS: dict[str, dict[str, tuple[str, ...]]] = {
+    "street": {
+        "road": ("road",),
+        "building": ("building", "house"),
+        "vegetation": ("vegetation", "tree", "plant", "grass"),
+    },
+    "indoor": {
+        "wall": ("wall",),
+        "floor": ("floor",),
+        "ceiling": ("ceiling",),
+    },
+}
+
+
+def preset_classes(preset: str, class_names: Sequence[str]) -> dict[str, tuple[str, ...]]:
+    """The preset's descriptor classes as groups of the model's classes; an error names a group the model lacks."""
+    if preset not in PRESETS:
+        raise InputError(f"unknown class preset '{preset}'; presets: {', '.join(PRESETS)}")
+    have = set(class_names)
+    groups = {group: tuple(name for name in names if name in have) for group, names in PRESETS[preset].items()}
+    missing = [group for group, members in groups.items() if not members]
+    if missing:
+        wanted = "; ".join(f"{group}: {' or '.join(PRESETS[preset][group])}" for group in missing)
+        raise InputError(
+            f"class preset '{preset}' does not fit this model: it has no class for {wanted}; "
+            f"set [lost] classes to groups of its classes ({', '.join(class_names)})"
+        )
+    return groups
