@@ -207,8 +207,8 @@ def verify(
     # Both heading hypotheses share the correspondences; only the query's x differs (p -> 1 - p).
     asked, other = (1.0 - p_query, p_query) if opposite else (p_query, 1.0 - p_query)
     return Verification(
-        scores=_score(scoring, cand, similarity, asked, p_ref, lost_distance),
-        mirror_scores=_score(scoring, cand, similarity, other, p_ref, lost_distance),
+        scores=score_pairs(scoring, cand, similarity, asked, p_ref, lost_distance),
+        mirror_scores=score_pairs(scoring, cand, similarity, other, p_ref, lost_distance),
         n_consistent=n_consistent,
         n_matches=np.bincount(cand, minlength=n_cand),
         grid=(h, w),
@@ -221,8 +221,9 @@ def verify(
     )
 
 
-def _score(scoring: Scoring, group: np.ndarray, similarity: np.ndarray, p_query: np.ndarray, p_ref: np.ndarray,
-           lost_distance: np.ndarray) -> np.ndarray:
+def score_pairs(scoring: Scoring, group: np.ndarray, similarity: np.ndarray, p_query: np.ndarray, p_ref: np.ndarray,
+                lost_distance: np.ndarray) -> np.ndarray:
+    """Each group's score from its surviving pairs (x coordinates as fractions of the width)."""
     if scoring == "released":
         return released_score(group, similarity, p_query, p_ref, lost_distance)
     scores = eq4_score(group, similarity, p_query, p_ref, len(lost_distance))

@@ -54,6 +54,9 @@ from .metrics import (
 
 DEFAULT_TOLERANCES = {"frames": (0.0, 1.0, 2.0), "m": (5.0, 10.0, 20.0, 40.0, 80.0)}
 NETWORK_METHODS = ("lostx", "lost", "appearance")
+HEADING_METHODS = ("lostx", "thumbnail")
+"""The methods that can tell the headings apart (a verification mirrored or not, a flipped thumbnail);
+pooled descriptors (LoST alone, GeM) are the same both ways."""
 
 
 @dataclass
@@ -236,7 +239,7 @@ def runs_of(method: str, matches: list[FrameMatch], refmap: ReferenceMap, query:
         lists = [[e.match_index] + [c.index for c in e.candidates if c.index != e.match_index] for e in estimates]
         out.append(Run(method, mode, np.array([e.match_index for e in estimates]),
                        np.array([e.confidence for e in estimates]), _candidate_lists(lists),
-                       headings=np.array([e.heading for e in estimates]),
+                       headings=np.array([e.heading for e in estimates]) if method in HEADING_METHODS else None,
                        localized=np.array([e.state == "localized" for e in estimates])))
     return out
 

@@ -74,7 +74,7 @@ def test_entry_point_plugin_builds_and_matches_a_map(robotcar, day_map, tmp_path
                                   np.load(day_map.path / "descriptors.npy"))
     builtin = PlaceMatcher(day_map)
     assert [m for m, _ in answers(tmp_path / "plugin.csv")] == \
-        [builtin.match(frame.image).best for frame in folder_traverse(robotcar / "night")]
+        [builtin.match(frame.image).same.best for frame in folder_traverse(robotcar / "night")]
     # Without the plugin installed, the map's backbone is unknown, and said so.
     lostx(capsys, "match", tmp_path / "day", robotcar / "night", "--out", tmp_path / "x.csv").error_line(
         "unknown backbone 'street-mosaic'", "package.module:factory")

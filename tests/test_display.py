@@ -10,7 +10,7 @@ from lostx.stream.protocol import Result, Stats, Tag
 
 RESULT = Result(frame_id=3, timestamp=None, state="not_localized", match_index=2, match_name="0000040.png",
                 position=None, confidence=0.0, score=0.4, single_match_index=2, candidates=(), sequence_score=1.5,
-                speed=1.0, window=3, warming_up=True, heading="same", heading_confidence=1.0,
+                speed=1.0, window=3, warming_up=True, margin=None, heading="same", heading_confidence=1.0,
                 latency_ms={"total": 41.0}, tag=Tag(stream="robot", seq=4, stream_seq=4))
 STATS = Stats(session="s", mode="live", uptime_s=3.0, received=10, answered=4, dropped=6, missing=0, duplicates=0,
               errors=0, errors_by_code={}, queued_frames=0, queued_results=0, listeners=1, producers=1,
