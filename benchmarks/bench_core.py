@@ -25,7 +25,7 @@ from lostx.core import Config, Frame, Localizer, LostDescriber, PlaceMatcher, Re
 from lostx.core.keypoints import KeypointEvidence, frame_evidence
 from lostx.core.lost import class_means, lost_descriptor
 from lostx.core.paths import data_dir
-from lostx.core.refmap import MapFrame, MapWriter
+from lostx.core.mapwriter import MapFrame, MapWriter
 from lostx.core.search import cosine_distances, top_k
 from lostx.core.verify import score_pairs, verify
 from lostx.replay.folder import folder_traverse

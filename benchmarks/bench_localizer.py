@@ -30,7 +30,7 @@ from lostx.core import Config, Frame, Localizer, ReferenceMap
 from lostx.core.calibration import Calibration
 from lostx.core.config import HeadingConfig
 from lostx.core.matcher import FrameMatch, MatchResult
-from lostx.core.refmap import MapFrame, MapWriter
+from lostx.core.mapwriter import MapFrame, MapWriter
 from lostx.core.search import cosine_distances, sad_distances, top_k
 
 

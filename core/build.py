@@ -1,25 +1,36 @@
-"""Building a reference map from a traverse."""
+"""Building a reference map from a traverse: describe every frame, commit the map atomically, calibrate.
+
+Described frames are checkpointed in chunks beside the map folder (:mod:`lostx.core.checkpoint`):
+an interrupted build resumes from them. The describing runs here, or on a cluster
+(:class:`ChunkDescribers`, e.g. Ray: :mod:`lostx.cluster`); either way every frame's class
+means are averaged over the same centred window, so the map is the same.
+"""
 
 from __future__ import annotations
 
+import contextlib
+import hashlib
+import json
 import time
 from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Iterable
+from typing import Callable, Iterable, Iterator, Protocol, Sequence
 
 import numpy as np
 from tqdm import tqdm
 
+from .calibration import calibrate
+from .camera import Geometry
+from .checkpoint import BuildCheckpoint, missing_ranges
 from .config import Config
 from .describe import DescribedFrame, LostDescriber
 from .errors import MapError
 from .frame import Frame
-from .inputcheck import ProfileBuilder
+from .inputcheck import label_frequencies, looks
 from .lost import centred_window, window_means
-from .calibration import calibrate
-from .camera import Geometry
-from .refmap import MapFrame, MapWriter, ReferenceMap
+from .mapwriter import CHUNK_FRAMES, MapChunk, MapFrame, MapWriter
+from .refmap import BACKBONE_IDENTITY, MAP_VERSION, MapKind, ReferenceMap, backbone_dict
 from .thumbnail import ThumbnailDescriber
 
 
@@ -29,32 +40,84 @@ class BuildSummary:
     n_frames: int
     seconds: float
     bytes: int
+    resumed: int = 0
+    """Frames an earlier, interrupted run of the same build had described (taken from its checkpoint)."""
 
     @property
     def bytes_per_frame(self) -> float:
         return self.bytes / max(self.n_frames, 1)
 
 
+class FrameSource(Protocol):
+    """A traverse that can be cut into ranges and identified (lostx.replay's traverses are)."""
+
+    def __len__(self) -> int: ...
+
+    def __iter__(self) -> Iterator[Frame]: ...
+
+    def subset(self, indices: Sequence[int] | np.ndarray) -> "FrameSource": ...
+
+    def fingerprint(self) -> list: ...
+
+
+class ChunkDescribers(Protocol):
+    """Describes ranges of a traverse elsewhere (other processes, other machines) and hands back chunks."""
+
+    def describe(self, frames: FrameSource, ranges: list[tuple[int, int]], config: Config,
+                 thumbnail: dict | None, on_chunk: Callable[[MapChunk, dict | None], None]) -> None:
+        """Describe frames [start, stop) of each range, as :func:`describe_chunks` does with
+        :func:`make_describer`, calling ``on_chunk`` with every chunk as it arrives and the backbone that
+        described it (:func:`lostx.core.refmap.backbone_dict`; None for thumbnails)."""
+
+
+def make_describer(config: Config, thumbnail: dict | None) -> LostDescriber | ThumbnailDescriber:
+    """The describer a build with these settings uses: ``config``'s backbone and LoST settings, or
+    thumbnails of the given settings (:meth:`ThumbnailDescriber.settings`)."""
+    if thumbnail is not None:
+        return ThumbnailDescriber(tuple(thumbnail["size"]), thumbnail["patch"])  # type: ignore[arg-type]
+    from .backbones import load_backbone
+
+    return LostDescriber(load_backbone(config.backbone), config.lost)
+
+
+def describe_chunks(frames: FrameSource, start: int, stop: int, config: Config,
+                    describer: LostDescriber | ThumbnailDescriber) -> Iterator[MapChunk]:
+    """Frames [start, stop) of a traverse as map chunks (of ``CHUNK_FRAMES`` frames at most)."""
+    lost = isinstance(describer, LostDescriber)
+    info = describer.backbone.info if lost else None
+    n_labels = len(describer.groups.label_names) if lost else 0  # type: ignore[union-attr]
+    run: list[MapFrame] = []
+    first = start
+    for index, frame in describe_range(frames, start, stop, config, describer):
+        run.append(frame)
+        if len(run) == CHUNK_FRAMES:
+            yield MapChunk.of_frames(first, run, "lost" if lost else "thumbnail", info, n_labels)
+            first, run = index + 1, []
+    if run:
+        yield MapChunk.of_frames(first, run, "lost" if lost else "thumbnail", info, n_labels)
+
+
 def _windowed(
-    frames: Iterable[Frame], describe: Callable[[np.ndarray], DescribedFrame], window: int
-) -> Iterable[tuple[Frame, DescribedFrame, np.ndarray]]:
-    """Yield each frame with its class means averaged over a centred window (clipped at the ends).
+    frames: Iterable[Frame], describe: Callable[[np.ndarray], DescribedFrame], window: int, emit_from: int = 0
+) -> Iterator[tuple[int, Frame, DescribedFrame, np.ndarray]]:
+    """Yield each frame (from the ``emit_from``-th on; those before only lend their class means) with its
+    class means averaged over a centred window, clipped at the ends of ``frames``.
 
     Frames stream through: frame j is finished as soon as frame j + window // 2
     has been described, so at most ``window`` frames are held at a time.
     """
     half = window // 2
     held: deque[tuple[int, Frame, DescribedFrame]] = deque()
-    done = 0
+    done = emit_from
 
-    def finish(j: int, length: int) -> tuple[Frame, DescribedFrame, np.ndarray]:
+    def finish(j: int, length: int) -> tuple[int, Frame, DescribedFrame, np.ndarray]:
         span = centred_window(j, length, window)
         chosen = [d for i, _, d in held if span.start <= i < span.stop]
         mu, _ = window_means(np.stack([d.means for d in chosen]), np.stack([d.present for d in chosen]))
         _, frame, described = next(item for item in held if item[0] == j)
         while held and held[0][0] < j + 1 - half:
             held.popleft()
-        return frame, described, mu
+        return j, frame, described, mu
 
     count = 0
     for i, frame in enumerate(frames):
@@ -68,8 +131,52 @@ def _windowed(
         done += 1
 
 
+def describe_range(frames: Iterable[Frame] | FrameSource, start: int, stop: int | None, config: Config,
+                   describer: LostDescriber | ThumbnailDescriber) -> Iterator[tuple[int, MapFrame]]:
+    """Map frames ``start`` to ``stop`` of a traverse (None: to its end), with their map indices.
+
+    A LoST frame's class means need the ``lost.reference_window // 2`` frames on each side: those are
+    described too (and no others), so any range gives the frames a whole-traverse build gives.
+    """
+    if isinstance(describer, ThumbnailDescriber):
+        for index, frame in _cut(frames, start, stop):
+            yield index, MapFrame(frame.name, describer(frame.image), position=frame.position,
+                                  timestamp=frame.timestamp, looks=looks(frame.image))
+        return
+    geometry = Geometry.for_backbone(config.camera, config.camera.view_hfov_deg, config.backbone.fit,
+                                     describer.backbone.info)
+    n_labels = len(describer.groups.label_names)
+    half = config.lost.reference_window // 2
+    first = max(0, start - half)
+    cut = (frame for _, frame in _cut(frames, first, None if stop is None else stop + half))
+    described = _windowed(cut, lambda image: describer(geometry.prepare(image)), config.lost.reference_window,
+                          emit_from=start - first)
+    for j, frame, desc, mu in described:
+        index = first + j
+        if stop is not None and index >= stop:
+            break
+        yield index, MapFrame(frame.name, describer.descriptor(desc, mu), desc.evidence, desc.appearance(),
+                              frame.position, frame.timestamp, looks(frame.image),
+                              label_frequencies(desc.labels, n_labels))
+
+
+def _cut(frames: Iterable[Frame] | FrameSource, start: int, stop: int | None) -> Iterator[tuple[int, Frame]]:
+    """Frames [start, stop) with their indices: cut out of a traverse that can be, read through otherwise."""
+    if hasattr(frames, "subset") and hasattr(frames, "__len__"):
+        end = len(frames) if stop is None else min(stop, len(frames))  # type: ignore[arg-type]
+        if start < end:
+            for offset, frame in enumerate(frames.subset(range(start, end))):  # type: ignore[union-attr]
+                yield start + offset, frame
+        return
+    for index, frame in enumerate(frames):
+        if stop is not None and index >= stop:
+            return
+        if index >= start:
+            yield index, frame
+
+
 def build_map(
-    frames: Iterable[Frame],
+    frames: Iterable[Frame] | FrameSource,
     out: str | Path,
     config: Config | None = None,
     describer: LostDescriber | ThumbnailDescriber | None = None,
@@ -78,21 +185,22 @@ def build_map(
     total: int | None = None,
     progress: bool = True,
     label: str | None = None,
+    cluster: ChunkDescribers | None = None,
 ) -> BuildSummary:
     """Describe every frame of a traverse and commit the map atomically.
 
     ``describer`` is a :class:`LostDescriber` (a LoST map: the default) or a
-    :class:`ThumbnailDescriber` (a map of SeqSLAM thumbnails). Any error while
-    reading or describing a frame aborts the build and leaves no map behind.
+    :class:`ThumbnailDescriber` (a map of SeqSLAM thumbnails). An error while reading or
+    describing a frame, or an interruption, stops the build and leaves no map behind, but keeps
+    what was described in the build's checkpoint: the same build started again resumes from it
+    (for a traverse that can be identified: lostx.replay's can). ``cluster`` describes the frames
+    elsewhere (with ``config``'s backbone and settings; the traverse must be one that can be cut).
     ``label`` names the work on the progress bar (default: the map folder's name).
     """
     config = config or Config()
-    if describer is None:
-        from .backbones import load_backbone
-
-        describer = LostDescriber(load_backbone(config.backbone), config.lost)
+    describer = describer or make_describer(config, None)
     start = time.perf_counter()
-    kind = "lost" if isinstance(describer, LostDescriber) else "thumbnail"
+    kind: MapKind = "lost" if isinstance(describer, LostDescriber) else "thumbnail"
     info = describer.backbone.info if isinstance(describer, LostDescriber) else None
     meta = dict(metadata or {})
     meta["settings"] = config.to_dict()
@@ -104,40 +212,66 @@ def build_map(
         meta["geometry"] = geometry.record()
     else:
         meta["thumbnail"] = describer.settings()
-    profile = ProfileBuilder(meta.get("label_names"))
-    bar = tqdm(total=total, desc=label or f"building {Path(out).name}", unit="frame", disable=not progress,
-               leave=False)
-    with MapWriter(out, kind, meta, backbone=info, overwrite=overwrite) as writer:
+    n_frames = len(frames) if hasattr(frames, "subset") and hasattr(frames, "__len__") else None  # type: ignore[arg-type]
+    if cluster is not None and n_frames is None:
+        raise MapError("describing on a cluster needs a traverse that can be cut into ranges (a folder, a dataset)")
+    checkpoint = BuildCheckpoint(out, _build_key(frames, kind, meta, info))
+    with MapWriter(out, kind, meta, backbone=info, overwrite=overwrite, spool=checkpoint.save) as writer:
+        saved = checkpoint.resume()
+        for first, _, path in saved:
+            writer.add_chunk(path, first)
+        resumed = sum(stop - first for first, stop, _ in saved)
+        bar = tqdm(total=total, initial=resumed, desc=label or f"building {Path(out).name}", unit="frame",
+                   disable=not progress, leave=False)
         try:
-            if isinstance(describer, LostDescriber):
-                describe = lambda image: describer(geometry.prepare(image))  # noqa: E731
-                for frame, described, mu in _windowed(_ticking(frames, bar), describe, config.lost.reference_window):
-                    profile.add(frame.image, described.labels)
-                    writer.add(
-                        MapFrame(frame.name, describer.descriptor(described, mu), described.evidence,
-                                 described.appearance(), frame.position, frame.timestamp)
-                    )
+            ranges = missing_ranges(saved, n_frames)
+            if cluster is not None:
+                def arrived(chunk: MapChunk, backbone: dict | None) -> None:
+                    _check_same_backbone(backbone, info)
+                    writer.add_chunk(checkpoint.save(chunk), chunk.start)
+                    bar.update(len(chunk.names))
+
+                thumbnail = describer.settings() if isinstance(describer, ThumbnailDescriber) else None
+                cluster.describe(frames, ranges, config, thumbnail, arrived)  # type: ignore[arg-type]
             else:
-                for frame in _ticking(frames, bar):
-                    profile.add(frame.image)
-                    writer.add(MapFrame(frame.name, describer(frame.image), position=frame.position,
-                                        timestamp=frame.timestamp))
+                for first, stop in ranges:
+                    for index, frame in describe_range(frames, first, stop, config, describer):
+                        writer.add(frame, index)
+                        bar.update(1)
+                    writer.flush()
+        except BaseException:
+            with contextlib.suppress(Exception):
+                writer.flush()  # what was described stays in the checkpoint
+            raise
         finally:
             bar.close()
-        if not writer.frames:
+        if not writer.n_frames:
             raise MapError("the traverse has no frames; nothing to build")
-        writer.metadata["input"] = profile.profile().to_dict()
         path = writer.commit()
+    checkpoint.remove()
     refmap = ReferenceMap.open(path)
     backbone = describer.backbone if isinstance(describer, LostDescriber) else None
     frames_measured = min(refmap.n_frames, config.decision.calibration_frames)
-    with tqdm(total=frames_measured, desc="calibrating", unit="frame", disable=not progress, leave=False) as bar:
-        refmap.store_calibration(calibrate(refmap, config, backbone, progress=bar.update))
-    return BuildSummary(path=path, n_frames=len(writer.frames), seconds=time.perf_counter() - start, bytes=writer.nbytes)
+    with tqdm(total=frames_measured, desc="calibrating", unit="frame", disable=not progress, leave=False) as cbar:
+        refmap.store_calibration(calibrate(refmap, config, backbone, progress=cbar.update))
+    return BuildSummary(path=path, n_frames=refmap.n_frames, seconds=time.perf_counter() - start, bytes=writer.nbytes,
+                        resumed=resumed)
 
 
-def _ticking(frames: Iterable[Frame], bar: tqdm) -> Iterable[Frame]:
-    for frame in frames:
-        yield frame
-        bar.update(1)
+def _check_same_backbone(theirs: dict | None, info: object) -> None:
+    mine = backbone_dict(info) or {}  # type: ignore[arg-type]
+    differ = [what for key, what in BACKBONE_IDENTITY.items() if (theirs or {}).get(key) != mine.get(key)]
+    if differ:
+        raise MapError(f"the cluster's workers describe with another backbone than this build's ({', '.join(differ)} "
+                       f"differ): give every worker the same model file")
 
+
+def _build_key(frames: Iterable[Frame] | FrameSource, kind: MapKind, meta: dict, info: object) -> str | None:
+    """What identifies a build, so that only the same build resumes from a checkpoint (None: a stream of frames
+    that cannot be identified)."""
+    fingerprint = getattr(frames, "fingerprint", None)
+    if fingerprint is None or not hasattr(frames, "subset"):
+        return None
+    payload = {"frames": fingerprint(), "kind": kind, "metadata": meta, "backbone": backbone_dict(info),  # type: ignore[arg-type]
+               "version": MAP_VERSION}
+    return hashlib.sha256(json.dumps(payload, sort_keys=True, default=str).encode()).hexdigest()

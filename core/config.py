@@ -30,6 +30,7 @@ Fit = Literal["squash", "crop", "pad"]
 DensityFilter = Literal["query", "both", "off"]
 Normalisation = Literal["running", "reference"]
 StreamMode = Literal["live", "lossless"]
+IndexUse = Literal["auto", "on", "off"]
 
 
 @dataclass(frozen=True)
@@ -111,6 +112,23 @@ class VerifyConfig:
 
 
 @dataclass(frozen=True)
+class SearchConfig:
+    """How the nearest map frames of a query descriptor are found: compared with every map frame, or
+    through the approximate index built with the map (see lostx.core.search)."""
+
+    index: IndexUse = "auto"
+    """``auto``: the index for maps of at least ``index_min_frames`` frames, every frame compared below;
+    ``on``: the index whatever the size (the map must have one); ``off``: every frame compared."""
+    index_min_frames: int = 20000
+    """Map size from which ``auto`` searches the index (below it comparing every frame is fast enough)."""
+    index_breadth: int = 64
+    """How much of the index's graph a search explores (its candidate list): wider finds the exact
+    nearest more often and takes longer."""
+    index_shortlist: int = 40
+    """Map frames taken from the index per search and ranked again by their exact distance."""
+
+
+@dataclass(frozen=True)
 class SequenceConfig:
     """Online sequence filter over a rolling window of frames (see lostx.core.sequence)."""
 
@@ -126,7 +144,11 @@ class SequenceConfig:
     """Slopes searched without a track (OpenSeqSLAM's range), each with both signs: a stopped or slow
     vehicle is only plausible once the tracker has seen it slow down."""
     anchors: int = 20
-    """Trajectories are anchored at each frame's verified candidates and its this many lowest-cost references."""
+    """Trajectories are anchored at each frame's verified candidates and its this many lowest costs among the
+    references looked up: where the live trajectories pass and around the ``nearest`` map frames of its search."""
+    nearest: int = 200
+    """Map frames nearest to a frame's descriptor around which (each with its ``contrast_window``
+    neighbourhood) the filter looks for that frame's anchors."""
     radius: int = 0
     """A trajectory takes a frame's lowest cost within this many reference frames of its line."""
     contrast_window: int = 10
@@ -256,6 +278,7 @@ class Config:
     camera: CameraConfig = field(default_factory=CameraConfig)
     lost: LostConfig = field(default_factory=LostConfig)
     verify: VerifyConfig = field(default_factory=VerifyConfig)
+    search: SearchConfig = field(default_factory=SearchConfig)
     sequence: SequenceConfig = field(default_factory=SequenceConfig)
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
     heading: HeadingConfig = field(default_factory=HeadingConfig)
@@ -302,10 +325,11 @@ LIMITS: dict[str, dict[str, Bounds]] = {
         "query_window": _AT_LEAST_1, "prior_frames": _AT_LEAST_0,
     },
     "verify": {"top_k": _AT_LEAST_1, "uniqueness_exclusion": _AT_LEAST_0},
+    "search": {"index_min_frames": _AT_LEAST_1, "index_breadth": Bounds(1, 4096), "index_shortlist": Bounds(1, 4096)},
     "camera": {"hfov_deg": Bounds(0, 180, above=True), "view_hfov_deg": Bounds(0, 180, above=True),
                "ignore_top": Bounds(0, 0.9), "ignore_bottom": Bounds(0, 0.9)},
     "sequence": {
-        "length": _AT_LEAST_1, "speeds": _AT_LEAST_0, "acquire_speeds": _ABOVE_0, "anchors": _AT_LEAST_0,
+        "length": _AT_LEAST_1, "speeds": _AT_LEAST_0, "acquire_speeds": _ABOVE_0, "anchors": _AT_LEAST_0, "nearest": _AT_LEAST_0,
         "radius": _AT_LEAST_0, "contrast_window": Bounds(2), "reference_prior": _AT_LEAST_0,
         "penalty": Bounds(), "exclusion": _AT_LEAST_0,
     },

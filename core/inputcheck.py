@@ -108,9 +108,15 @@ class ProfileBuilder:
         self._labels = np.zeros(len(self.label_names or ()))
 
     def add(self, image: np.ndarray, labels: np.ndarray | None = None) -> None:
-        self._looks.append(looks(image))
-        if self.label_names is not None and labels is not None:
-            self._labels += label_frequencies(labels, len(self.label_names))
+        frequencies = label_frequencies(labels, len(self.label_names)) if self.label_names is not None and \
+            labels is not None else None
+        self.add_looks(looks(image), frequencies)
+
+    def add_looks(self, frame: Looks, frequencies: np.ndarray | None = None) -> None:
+        """Add a frame by what it looked like (and its label frequencies)."""
+        self._looks.append(frame)
+        if self.label_names is not None and frequencies is not None:
+            self._labels += frequencies
 
     def profile(self) -> InputProfile | None:
         if not self._looks:

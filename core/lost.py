@@ -17,6 +17,7 @@ processes (so would every answer that depends on it).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable, Iterable
 
 import numpy as np
 
@@ -98,9 +99,19 @@ class DescriptorStats:
     count: int
 
     @classmethod
-    def of(cls, descriptors: np.ndarray) -> "DescriptorStats":
-        unit = l2_normalise(descriptors.astype(np.float64))
-        return cls(unit.mean(axis=0).astype(np.float32), unit.std(axis=0).astype(np.float32), len(unit))
+    def of(cls, descriptors: np.ndarray, block: int = 8192) -> "DescriptorStats":
+        return cls.of_blocks(lambda: (descriptors[i : i + block] for i in range(0, len(descriptors), block)),
+                             len(descriptors))
+
+    @classmethod
+    def of_blocks(cls, blocks: Callable[[], Iterable[np.ndarray]], count: int) -> "DescriptorStats":
+        """The statistics of ``count`` descriptors that ``blocks()`` yields block by block (it is called twice:
+        the mean first, then the deviations from it). The same blocks give the same bits, however the
+        descriptors were computed; one block gives numpy's own mean and standard deviation."""
+        total = sum(l2_normalise(np.asarray(b, dtype=np.float64)).sum(axis=0) for b in blocks())
+        mean = total / count
+        squares = sum(((l2_normalise(np.asarray(b, dtype=np.float64)) - mean) ** 2).sum(axis=0) for b in blocks())
+        return cls(mean.astype(np.float32), np.sqrt(squares / count).astype(np.float32), count)
 
 
 def _floor(std: np.ndarray) -> np.ndarray:

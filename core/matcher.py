@@ -5,6 +5,8 @@ from __future__ import annotations
 import dataclasses
 import time
 from dataclasses import dataclass, field
+from functools import partial
+from typing import Callable
 
 import numpy as np
 
@@ -18,7 +20,8 @@ from .images import check_frame
 from .keypoints import KeypointEvidence
 from .lost import RunningStandardiser
 from .refmap import ReferenceMap
-from .search import cosine_distances, sad_distances, top_k
+from .costs import MapScores
+from .search import CandidateSearch
 from .thumbnail import ThumbnailDescriber
 from .verify import Correspondences, Verification, verify
 
@@ -66,10 +69,13 @@ class MatchResult:
     """(h, w) grouped semantic labels of the query."""
     timings: dict[str, float] = field(default_factory=dict)
     """Seconds per stage: network, descriptor, search, verify."""
-    map_scores: np.ndarray | None = None
-    """(N,) the single-frame score of every reference frame, for the sequence filter: the descriptor
-    distance for thumbnails; for LoST-X the verification score of the verified candidates and, elsewhere,
-    the descriptor distance times the candidates' median ratio of score to distance."""
+    map_scores: MapScores | None = None
+    """The single-frame score of any reference frame, computed when the sequence filter asks: the
+    descriptor distance for thumbnails; for LoST-X the verification score of the verified candidates
+    and, elsewhere, the descriptor distance times the candidates' median ratio of score to distance."""
+    nearest: np.ndarray | None = None
+    """The search's nearest reference frames (``sequence.nearest`` of them, or ``verify.top_k`` if more),
+    nearest first: where the sequence filter looks for its anchors."""
     heading: Heading = "same"
     """The heading hypothesis these scores were computed under (the query's x mirrored for ``opposite``)."""
 
@@ -168,6 +174,7 @@ class PlaceMatcher:
             settings = refmap.manifest.get("thumbnail", {})
             self.describer = ThumbnailDescriber(tuple(settings.get("size", (64, 32))), settings.get("patch", 8))
 
+        self.search = CandidateSearch(refmap, self.config.search)
         self.backbone: Backbone | None = self.describer.backbone if isinstance(self.describer, LostDescriber) else None
         self.last_evidence: KeypointEvidence | None = None
         """The latest LoST query's keypoint evidence (to verify further candidates against)."""
@@ -204,22 +211,24 @@ class PlaceMatcher:
         # The opposite hypothesis compares the flipped thumbnail: left and right swap between the views.
         return self._thumbnail_match({"same": self.describer(image), "opposite": self.describer(image[:, ::-1])}, t0)
 
-    def _thumbnail_match(self, queries: dict[str, np.ndarray], t0: float,
-                         exclude: tuple[int, int] | None = None) -> FrameMatch:
+    @property
+    def _nearest_count(self) -> int:
+        return max(self.config.verify.top_k, self.config.sequence.nearest)
+
+    def _thumbnail_match(self, queries: dict[str, np.ndarray], t0: float, removed: slice | None = None) -> FrameMatch:
         t1 = time.perf_counter()
+        k = self.config.verify.top_k
         results = {}
         for heading, query in queries.items():
-            distances = sad_distances(query, self.map.descriptors)
-            if exclude is not None:
-                _worst(distances, _around(len(distances), *exclude))
-            order = top_k(distances, self.config.verify.top_k)
-            ranked = distances[order]
+            nearest, distances = self.search.nearest(query, self._nearest_count, removed)
+            order, ranked = nearest[:k], distances[:k]
             results[heading] = MatchResult(
                 candidates=order,
                 distances=ranked,
                 scores=ranked,
                 confidence=uniqueness(order, ranked, self.config.verify.uniqueness_exclusion),
-                map_scores=distances,
+                map_scores=without(MapScores(partial(self.search.distances, query), self.map.n_frames), removed),
+                nearest=nearest,
                 heading=heading,  # type: ignore[arg-type]
             )
         timings = {"network": 0.0, "descriptor": t1 - t0, "search": time.perf_counter() - t1, "verify": 0.0}
@@ -227,51 +236,49 @@ class PlaceMatcher:
             result.timings = timings
         # Paired over the candidates of both searches: every one of them scored both ways.
         shortlist = np.union1d(results["same"].candidates, results["opposite"].candidates)
-        vote = heading_vote(results["same"].map_scores[shortlist], results["opposite"].map_scores[shortlist])
+        vote = heading_vote(results["same"].map_scores.at(shortlist),  # type: ignore[union-attr]
+                            results["opposite"].map_scores.at(shortlist))  # type: ignore[union-attr]
         return FrameMatch(results["same"], results["opposite"], vote)
 
     def match_description(self, query: QueryDescription) -> FrameMatch:
         """Normalise (causally), search and verify a described LoST query frame under both headings."""
         self.last_evidence = query.evidence
         t0 = time.perf_counter()
-        distances = cosine_distances(self.normaliser(query.descriptor), self.map.descriptors)
-        return self._search_and_verify(distances, query.evidence, query.labels, {**query.timings}, t0)
+        vector = self.normaliser(query.descriptor)
+        return self._search_and_verify(vector, query.evidence, query.labels, {**query.timings}, t0)
 
     def match_reference(self, index: int, exclude: int) -> FrameMatch | None:
         """Map frame ``index`` as a query, with the reference frames within ``exclude`` of it removed:
         its answer is necessarily wrong. What wrong answers look like, measured without any query
-        (see :mod:`lostx.core.calibration`). None when the exclusion leaves no reference frame."""
-        if self.map.n_frames <= _around(self.map.n_frames, index, exclude).stop - max(0, index - exclude):
+        (see :mod:`lostx.core.calibration`), searched and scored as a query is. None when the exclusion
+        leaves no reference frame."""
+        removed = _around(self.map.n_frames, index, exclude)
+        if self.map.n_frames <= removed.stop - removed.start:
             return None
         t0 = time.perf_counter()
+        query = self.map.descriptor_rows(np.array([index]))[0]
         if isinstance(self.describer, ThumbnailDescriber):
-            query = np.asarray(self.map.descriptors[index])
             flipped = query.reshape(self.describer.size[1], -1)[:, ::-1].ravel()
-            return self._thumbnail_match({"same": query, "opposite": flipped}, t0, exclude=(index, exclude))
-        distances = cosine_distances(self.map.descriptors[index], self.map.descriptors)
-        return self._search_and_verify(distances, self.map.evidence([index]), self.map.labels(index), {}, t0,
-                                       excluded=_around(len(distances), index, exclude))
+            return self._thumbnail_match({"same": query, "opposite": flipped}, t0, removed)
+        return self._search_and_verify(query, self.map.evidence([index]), self.map.labels(index), {}, t0, removed)
 
-    def _search_and_verify(self, distances: np.ndarray, evidence: KeypointEvidence, labels: np.ndarray,
-                           timings: dict[str, float], t0: float, excluded: slice | None = None) -> FrameMatch:
+    def _search_and_verify(self, vector: np.ndarray, evidence: KeypointEvidence, labels: np.ndarray,
+                           timings: dict[str, float], t0: float, removed: slice | None = None) -> FrameMatch:
         cfg = self.config.verify
-        if excluded is not None:
-            _worst(distances, excluded)
-            shortlist = top_k(np.delete(distances, excluded), cfg.top_k)
-            shortlist[shortlist >= excluded.start] += excluded.stop - excluded.start
-        else:
-            shortlist = top_k(distances, cfg.top_k)
+        nearest, near = self.search.nearest(vector, self._nearest_count, removed)
+        shortlist, distances = nearest[: cfg.top_k], near[: cfg.top_k]
+        distance_of = partial(self.search.distances, vector)
         t1 = time.perf_counter()
         timings.update({"search": t1 - t0, "verify": 0.0})
         if not cfg.enabled:
-            ranked = distances[shortlist]
             return FrameMatch.either(MatchResult(
-                shortlist, ranked, ranked, uniqueness(shortlist, ranked, cfg.uniqueness_exclusion),
-                query_labels=labels, timings=timings, map_scores=distances))
+                shortlist, distances, distances, uniqueness(shortlist, distances, cfg.uniqueness_exclusion),
+                query_labels=labels, timings=timings,
+                map_scores=without(MapScores(distance_of, self.map.n_frames), removed), nearest=nearest))
         result = verify(
             evidence,
             self.map.evidence(shortlist),
-            distances[shortlist],
+            distances,
             scoring=cfg.scoring,
             density=cfg.density_filter,
         )
@@ -283,7 +290,7 @@ class PlaceMatcher:
             candidates, ranked = shortlist[rank], scores[rank]
             answers[heading] = MatchResult(
                 candidates=candidates,
-                distances=distances[candidates],
+                distances=distances[rank],
                 scores=ranked,
                 confidence=uniqueness(candidates, ranked, cfg.uniqueness_exclusion),
                 n_matches=result.n_matches[rank],
@@ -291,11 +298,11 @@ class PlaceMatcher:
                 shortlist=shortlist,
                 query_labels=labels,
                 timings=timings,
-                map_scores=map_scores(distances, shortlist, scores, cfg.scoring),
+                map_scores=map_scores(distance_of, self.map.n_frames, shortlist, distances, scores, cfg.scoring,
+                                      removed),
+                nearest=nearest,
                 heading=heading,  # type: ignore[arg-type]
             )
-            if excluded is not None:
-                _worst(answers[heading].map_scores, excluded)
         return FrameMatch(answers["same"], answers["opposite"], heading_vote(result.scores, result.mirror_scores))
 
 
@@ -303,14 +310,24 @@ def _around(n: int, index: int, radius: int) -> slice:
     return slice(max(0, index - radius), min(n, index + radius + 1))
 
 
-def _worst(scores: np.ndarray, excluded: slice) -> None:
-    """Give the excluded references the worst score of the others (finite, so that the sequence
-    filter's contrast normalisation stays defined): no answer can fall there."""
-    outside = np.delete(scores, excluded)
-    scores[excluded] = outside.max() if len(outside) else 0.0
+WORST_SAMPLE = 4096
+"""Map frames (evenly spaced, and the verified candidates) whose worst score stands in for the removed frames'
+score (every frame of a map up to this size)."""
 
 
-def map_scores(distances: np.ndarray, shortlist: np.ndarray, verified: np.ndarray, scoring: str) -> np.ndarray:
+def without(scores: MapScores, removed: slice | None) -> MapScores:
+    """``scores`` with the ``removed`` map frames given the worst score of the others."""
+    if removed is None:
+        return scores
+    n = scores.n_frames
+    sample = np.union1d(np.linspace(0, n - 1, min(n, WORST_SAMPLE)).astype(np.int64), scores.known)
+    sample = sample[(sample < removed.start) | (sample >= removed.stop)]
+    worst = float(np.max(scores.at(sample))) if len(sample) else 0.0
+    return dataclasses.replace(scores, removed=removed, removed_score=worst)
+
+
+def map_scores(distance_of: Callable[[np.ndarray], np.ndarray], n_frames: int, shortlist: np.ndarray,
+               distances: np.ndarray, verified: np.ndarray, scoring: str, removed: slice | None = None) -> MapScores:
     """Extend the verified scores of the shortlist to every reference frame.
 
     Verification scores exist for the top k only. Elsewhere the score is imputed
@@ -321,15 +338,15 @@ def map_scores(distances: np.ndarray, shortlist: np.ndarray, verified: np.ndarra
     gets the imputed score too.
     """
     finite = np.isfinite(verified)
+    factor, constant = 1.0, None
     if scoring == "eq4":
-        fill = float(np.median(verified[finite])) if finite.any() else 1.0
-        scores = np.full(len(distances), fill)
+        constant = float(np.median(verified[finite])) if finite.any() else 1.0
     else:
-        d = np.maximum(distances[shortlist], 1e-12)
+        d = np.maximum(distances, 1e-12)
         factor = float(np.median(verified[finite] / d[finite])) if finite.any() else 1.0
-        scores = distances.astype(np.float64) * factor
-    scores[shortlist[finite]] = verified[finite]
-    return scores
+    order = np.argsort(shortlist[finite])
+    return without(MapScores(distance_of, n_frames, factor=factor, constant=constant, known=shortlist[finite][order],
+                             known_scores=np.asarray(verified[finite], dtype=np.float64)[order]), removed)
 
 
 def _with_classes(config: LostConfig, classes: dict[str, list[str]]) -> LostConfig:

@@ -26,18 +26,17 @@ locations (its slots). They are stored exactly: a quantised backbone's uint8
 values as they came out of the network, or float16 otherwise, and only the
 non-zero ones (ReLU features are ~90 % zeros), with a bit mask per slot.
 
+    index.faiss             the approximate index of the descriptors (lostx.core.index)
+
 The manifest is written last, into a temporary folder that is renamed into
-place, so an interrupted build never leaves a folder that opens as a map.
+place, so an interrupted build never leaves a folder that opens as a map
+(lostx.core.mapwriter writes maps).
 """
 
 from __future__ import annotations
 
-import hashlib
 import json
-import os
-import shutil
-import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
@@ -45,9 +44,9 @@ import numpy as np
 
 from .backbones import BackboneInfo, Quantisation
 from .errors import MapError
+from .index import ApproximateIndex, file_sha256
 from .keypoints import KeypointEvidence
-from .lost import DescriptorStats, standardise
-from .outputs import check_output_folder
+from .lost import DescriptorStats
 
 if TYPE_CHECKING:
     from .calibration import Calibration
@@ -56,124 +55,6 @@ if TYPE_CHECKING:
 MAP_FORMAT = "lostx-map"
 MAP_VERSION = 1
 MapKind = Literal["lost", "thumbnail"]
-
-
-@dataclass
-class MapFrame:
-    """One reference frame as the builder hands it to the writer."""
-
-    name: str
-    descriptor: np.ndarray
-    """Raw global descriptor (before normalisation)."""
-    evidence: KeypointEvidence | None = None
-    appearance: np.ndarray | None = None
-    """GeM-pooled network features (the appearance baseline), for LoST maps."""
-    position: tuple[float, float] | None = None
-    timestamp: float | None = None
-
-
-class MapWriter:
-    """Collects frames and commits them as a map folder in one atomic rename.
-
-    Use as a context manager: leaving the block by an exception removes the
-    temporary folder and leaves any existing map untouched.
-    """
-
-    def __init__(
-        self,
-        out: str | Path,
-        kind: MapKind,
-        metadata: dict[str, Any],
-        backbone: BackboneInfo | None = None,
-        overwrite: bool = False,
-    ) -> None:
-        self.out = check_output_folder(out, "map folder")
-        if self.out.exists() and not overwrite:
-            raise MapError(f"{self.out} already exists; pass --overwrite to replace it")
-        if self.out.exists() and not (self.out / "manifest.json").is_file() and any(self.out.iterdir()):
-            raise MapError(f"{self.out} exists and is not a lostx map; refusing to replace it")
-        self.kind = kind
-        self.metadata = metadata
-        self.backbone = backbone
-        self.overwrite = overwrite
-        self.frames: list[MapFrame] = []
-        self.nbytes = 0
-        """Bytes of the committed map's files."""
-        self._tmp = self.out.parent / f".{self.out.name}.partial-{os.getpid()}"
-
-    def __enter__(self) -> "MapWriter":
-        return self
-
-    def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
-        if exc_type is not None:
-            shutil.rmtree(self._tmp, ignore_errors=True)
-
-    def add(self, frame: MapFrame) -> None:
-        if self.kind == "lost" and frame.evidence is None:
-            raise ValueError("a LoST map frame needs its keypoint evidence")
-        self.frames.append(frame)
-
-    def commit(self) -> Path:
-        if not self.frames:
-            raise MapError(f"no frames to write to {self.out}")
-        shutil.rmtree(self._tmp, ignore_errors=True)
-        self._tmp.mkdir(parents=True)
-        try:
-            arrays = self._arrays()
-            files = {name: _write_array(self._tmp / f"{name}.npy", array) for name, array in arrays.items()}
-            self.nbytes = sum(entry["bytes"] for entry in files.values())
-            manifest = {
-                "format": MAP_FORMAT,
-                "version": MAP_VERSION,
-                "kind": self.kind,
-                "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
-                "n_frames": len(self.frames),
-                "frames": [f.name for f in self.frames],
-                "backbone": _backbone_dict(self.backbone),
-                **self.metadata,
-                "arrays": files,
-            }
-            _write_bytes(self._tmp / "manifest.json", json.dumps(manifest, indent=1).encode())
-            _fsync_dir(self._tmp)
-            self._swap_in()
-        except BaseException:
-            shutil.rmtree(self._tmp, ignore_errors=True)
-            raise
-        return self.out
-
-    def _swap_in(self) -> None:
-        old = None
-        if self.out.exists():
-            old = self.out.parent / f".{self.out.name}.old-{os.getpid()}"
-            os.replace(self.out, old)
-        os.replace(self._tmp, self.out)
-        _fsync_dir(self.out.parent)
-        if old is not None:
-            shutil.rmtree(old, ignore_errors=True)
-
-    def _arrays(self) -> dict[str, np.ndarray]:
-        raw = np.stack([f.descriptor for f in self.frames]).astype(np.float32)
-        arrays: dict[str, np.ndarray] = {}
-        if self.kind == "lost":
-            stats = DescriptorStats.of(raw)
-            arrays["descriptors"] = standardise(raw, stats.mean, stats.std).astype(np.float16)
-            arrays["stats_mean"] = stats.mean
-            arrays["stats_std"] = stats.std
-            arrays.update(_pack_evidence([f.evidence for f in self.frames], self.backbone))  # type: ignore[misc]
-            if all(f.appearance is not None for f in self.frames):
-                arrays["appearance"] = np.stack([f.appearance for f in self.frames]).astype(np.float16)
-        else:
-            arrays["descriptors"] = np.stack([f.descriptor for f in self.frames]).astype(np.uint8)
-        positions = [f.position for f in self.frames]
-        if any(p is not None for p in positions):
-            if any(p is None for p in positions):
-                missing = [f.name for f in self.frames if f.position is None][:3]
-                raise MapError(f"positions are given for some frames but not for {', '.join(missing)}")
-            arrays["positions"] = np.asarray(positions, dtype=np.float64)
-        stamps = [f.timestamp for f in self.frames]
-        if all(t is not None for t in stamps):
-            arrays["timestamps"] = np.asarray(stamps, dtype=np.float64)
-        return arrays
 
 
 BACKBONE_IDENTITY = {
@@ -190,7 +71,8 @@ def _identity(backbone: dict[str, Any]) -> str:
             f"features{tensor} {backbone.get('feature_dim')} x {h}x{w})")
 
 
-def _backbone_dict(info: BackboneInfo | None) -> dict[str, Any] | None:
+def backbone_dict(info: BackboneInfo | None) -> dict[str, Any] | None:
+    """A backbone's info as the manifest records it."""
     if info is None:
         return None
     data = asdict(info)
@@ -198,68 +80,6 @@ def _backbone_dict(info: BackboneInfo | None) -> dict[str, Any] | None:
     data["class_names"] = list(info.class_names)
     data["default_classes"] = {k: list(v) for k, v in info.default_classes.items()}
     return data
-
-
-def _pack_evidence(frames: list[KeypointEvidence], backbone: BackboneInfo | None) -> dict[str, np.ndarray]:
-    quant = backbone.feature_quantisation if backbone else None
-    frames = [f.sparse() for f in frames]
-    values = np.concatenate([f.values for f in frames])
-    if quant is not None:
-        stored = np.rint(values / quant.scale + quant.zero_point)
-        if not np.allclose((stored - quant.zero_point) * quant.scale, values, rtol=0, atol=quant.scale * 1e-3):
-            raise MapError("features are not on the backbone's quantisation grid; cannot store them exactly")
-        stored = stored.astype(np.uint8)
-    else:
-        stored = values.astype(np.float16)
-    keep = stored != (quant.zero_point if quant else 0)
-    slot_of_entry = np.concatenate([np.repeat(np.arange(len(f.slot_keys)), np.diff(f.slot_offsets)) for f in frames])
-    first_slot = np.cumsum([0] + [len(f.slot_keys) for f in frames])
-    slot_of_entry = slot_of_entry + np.repeat(first_slot[:-1], [len(f.channels) for f in frames])
-    counts = np.bincount(slot_of_entry[keep], minlength=first_slot[-1])
-    # Frame n's entries start after those of every slot before its first one.
-    frame_entries = np.concatenate([[0], np.cumsum(counts)])[first_slot]
-    return {
-        "keypoints": np.concatenate([f.keypoints for f in frames]).astype(np.int16),
-        "labels": np.concatenate([f.labels for f in frames]).astype(np.uint8),
-        "frame_slots": first_slot.astype(np.int64),
-        "frame_entries": frame_entries.astype(np.int64),
-        "slot_locations": np.concatenate([f.slot_keys for f in frames]).astype(np.uint16),
-        "slot_counts": counts.astype(np.uint16),
-        "slot_norms": np.concatenate([f.slot_norms for f in frames]).astype(np.float32),
-        "slot_channels": np.concatenate([f.channels for f in frames])[keep].astype(np.uint16),
-        "slot_values": stored[keep],
-    }
-
-
-def _write_bytes(path: Path, data: bytes) -> None:
-    with open(path, "wb") as handle:
-        handle.write(data)
-        handle.flush()
-        os.fsync(handle.fileno())
-
-
-def _write_array(path: Path, array: np.ndarray) -> dict[str, Any]:
-    array = np.ascontiguousarray(array)
-    with open(path, "wb") as handle:
-        np.save(handle, array, allow_pickle=False)
-        handle.flush()
-        os.fsync(handle.fileno())
-    digest = hashlib.sha256(path.read_bytes()).hexdigest()
-    return {
-        "file": path.name,
-        "dtype": array.dtype.str,
-        "shape": list(array.shape),
-        "bytes": path.stat().st_size,
-        "sha256": digest,
-    }
-
-
-def _fsync_dir(path: Path) -> None:
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
 
 
 class ReferenceMap:
@@ -271,12 +91,13 @@ class ReferenceMap:
         self._arrays = arrays
         self.kind: MapKind = manifest["kind"]
         self.names: list[str] = list(manifest["frames"])
-        self.descriptors = np.asarray(arrays["descriptors"], dtype=np.float32 if self.kind == "lost" else np.uint8)
+        self._descriptors: np.ndarray | None = None
         self.positions: np.ndarray | None = arrays.get("positions")
         self.appearance: np.ndarray | None = (
             np.asarray(arrays["appearance"], dtype=np.float32) if "appearance" in arrays else None
         )
         self.timestamps: np.ndarray | None = arrays.get("timestamps")
+        self._index: ApproximateIndex | None = None
         self.backbone: dict[str, Any] | None = manifest.get("backbone")
         if self.kind == "lost":
             self.stats = DescriptorStats(arrays["stats_mean"], arrays["stats_std"], len(self.names))
@@ -308,6 +129,8 @@ class ReferenceMap:
         arrays = {}
         for name, entry in manifest["arrays"].items():
             arrays[name] = _open_array(path, entry, verify_checksums)
+        if manifest.get("index"):
+            _check_file(path, manifest["index"], verify_checksums)
         n = manifest["n_frames"]
         if len(manifest["frames"]) != n or len(arrays["descriptors"]) != n:
             raise MapError(f"{path}: manifest lists {n} frames but the arrays disagree")
@@ -316,6 +139,31 @@ class ReferenceMap:
     @property
     def n_frames(self) -> int:
         return len(self.names)
+
+    @property
+    def index(self) -> ApproximateIndex | None:
+        """The map's approximate index (lostx.core.index), opened on first use; None for a map built without."""
+        entry = self.manifest.get("index")
+        if self._index is None and entry:
+            self._index = ApproximateIndex(self.path / entry["file"], self.n_frames)
+        return self._index
+
+    @property
+    def descriptors(self) -> np.ndarray:
+        """(N, K) every map descriptor in memory: float32 normalised LoST descriptors, or uint8 thumbnails.
+        Read on first use (an exact search over the whole map needs them; the index does not)."""
+        if self._descriptors is None:
+            self._descriptors = np.asarray(self._arrays["descriptors"], dtype=self._descriptor_dtype)
+        return self._descriptors
+
+    def descriptor_rows(self, indices: np.ndarray) -> np.ndarray:
+        """The descriptors of map frames ``indices``, read from memory or from the memory map."""
+        source = self._descriptors if self._descriptors is not None else self._arrays["descriptors"]
+        return np.asarray(source[np.asarray(indices, dtype=np.int64)], dtype=self._descriptor_dtype)
+
+    @property
+    def _descriptor_dtype(self) -> type:
+        return np.float32 if self.kind == "lost" else np.uint8
 
     @property
     def camera(self) -> str:
@@ -341,7 +189,8 @@ class ReferenceMap:
 
     @property
     def nbytes(self) -> int:
-        return sum(int(e["bytes"]) for e in self.manifest["arrays"].values())
+        index = self.manifest.get("index") or {}
+        return sum(int(e["bytes"]) for e in self.manifest["arrays"].values()) + int(index.get("bytes", 0))
 
     def calibration(self, config: "Config") -> "Calibration | None":
         """The stored calibration measured with these settings, if any (see lostx.core.calibration)."""
@@ -364,7 +213,7 @@ class ReferenceMap:
         mine = self.backbone or {}
         if self.kind != "lost":
             raise MapError(f"{self.path} is a {self.kind} map; it takes no backbone (use --descriptor {self.kind})")
-        theirs = _backbone_dict(info) or {}
+        theirs = backbone_dict(info) or {}
         # Maps from before the feature tensor was recorded do not compare it.
         differ = [key for key in BACKBONE_IDENTITY if key in mine and mine[key] != theirs[key]]
         if differ:
@@ -408,15 +257,20 @@ class ReferenceMap:
         )
 
 
-def _open_array(root: Path, entry: dict[str, Any], verify_checksum: bool) -> np.ndarray:
+def _check_file(root: Path, entry: dict[str, Any], verify_checksum: bool) -> Path:
     path = root / entry["file"]
     if not path.is_file():
         raise MapError(f"map file missing: {path}")
     size = path.stat().st_size
     if size != entry["bytes"]:
         raise MapError(f"map file {path} is truncated or altered: {size} bytes, the manifest says {entry['bytes']}")
-    if verify_checksum and hashlib.sha256(path.read_bytes()).hexdigest() != entry["sha256"]:
+    if verify_checksum and file_sha256(path) != entry["sha256"]:
         raise MapError(f"map file {path} fails its checksum: it was altered after the build")
+    return path
+
+
+def _open_array(root: Path, entry: dict[str, Any], verify_checksum: bool) -> np.ndarray:
+    path = _check_file(root, entry, verify_checksum)
     try:
         array = np.load(path, mmap_mode="r", allow_pickle=False)
     except (ValueError, OSError) as exc:

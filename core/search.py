@@ -1,9 +1,25 @@
-"""Candidate search: the k reference frames nearest to a query descriptor (paper Sec. III-A)."""
+"""Candidate search: the k reference frames nearest to a query descriptor (paper Sec. III-A).
+
+Below ``search.index_min_frames`` map frames (or with ``search.index = "off"``) every map frame is
+compared. Above it, the map's approximate index (:mod:`lostx.core.index`, built with the map)
+proposes ``search.index_shortlist`` frames, ranked again by their exact distance: the k nearest
+returned are the exact nearest whenever the index found them (``lostx map info --verify``
+measures how often it does). The distance itself is always exact: LoST cosine distance, or the
+thumbnails' mean absolute difference.
+"""
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import cv2
 import numpy as np
+
+from .config import SearchConfig
+from .errors import MapError
+
+if TYPE_CHECKING:
+    from .refmap import ReferenceMap
 
 
 def top_k(distances: np.ndarray, k: int) -> np.ndarray:
@@ -38,3 +54,51 @@ def sad_distances(query: np.ndarray, refs: np.ndarray, chunk: int = 1024) -> np.
         diff = cv2.absdiff(block, tiled[: len(block)])
         out[start : start + len(block)] = cv2.reduce(diff, 1, cv2.REDUCE_SUM, dtype=cv2.CV_32S).ravel()
     return out / refs.shape[1]
+
+
+class CandidateSearch:
+    """The nearest map frames of a query descriptor, exactly or through the map's index."""
+
+    def __init__(self, refmap: "ReferenceMap", config: SearchConfig | None = None) -> None:
+        self.map = refmap
+        self.config = config or SearchConfig()
+        self.index = None
+        if uses_index(self.config, refmap.n_frames):
+            self.index = refmap.index
+            if self.index is None:
+                raise MapError(f"{refmap.path} has no approximate index (built by an older lostx); rebuild the map "
+                               f"with `lostx map build`, or search every frame with [search] index = \"off\"")
+
+    @property
+    def approximate(self) -> bool:
+        return self.index is not None
+
+    def nearest(self, query: np.ndarray, k: int, removed: slice | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """The k map frames nearest to ``query`` (those in ``removed`` left out), nearest first (ties to the
+        lower index), and their exact distances."""
+        if self.index is None:
+            distances = self.distances(query)
+            if removed is not None:
+                distances[removed] = np.inf
+                k = min(k, len(distances) - (removed.stop - removed.start))
+            found = top_k(distances, k)
+            return found, distances[found]
+        fetch = max(k, self.config.index_shortlist) + (0 if removed is None else removed.stop - removed.start)
+        found = self.index.search(query, fetch, max(self.config.index_breadth, fetch))
+        if removed is not None:
+            found = found[(found < removed.start) | (found >= removed.stop)]
+        distances = self.distances(query, found)
+        order = np.lexsort((found, distances))[:k]
+        return found[order], distances[order]
+
+    def distances(self, query: np.ndarray, refs: np.ndarray | None = None) -> np.ndarray:
+        """Exact distances of ``query`` to the map frames ``refs`` (every frame when None), float32 or float64."""
+        rows = self.map.descriptors if refs is None else self.map.descriptor_rows(refs)
+        if self.map.kind == "lost":
+            return cosine_distances(np.asarray(query, dtype=np.float32), rows)
+        return sad_distances(query, rows)
+
+
+def uses_index(config: SearchConfig, n_frames: int) -> bool:
+    """Whether a search with these settings goes through the index of a map of ``n_frames``."""
+    return config.index == "on" or (config.index == "auto" and n_frames >= config.index_min_frames)

@@ -20,7 +20,8 @@ from lostx.core.coverage import ClassCoverageWarning, coverage_message
 from lostx.core.describe import LostDescriber
 from lostx.core.errors import InputError, MapError, ModelError
 from lostx.core.keypoints import frame_evidence
-from lostx.core.refmap import MapFrame, MapWriter, ReferenceMap
+from lostx.core.mapwriter import MapFrame, MapWriter
+from lostx.core.refmap import ReferenceMap
 from lostx.replay.folder import folder_traverse
 
 

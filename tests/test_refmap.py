@@ -11,7 +11,8 @@ import pytest
 from lostx.core.backbones import BackboneInfo, Quantisation
 from lostx.core.errors import MapError
 from lostx.core.keypoints import frame_evidence
-from lostx.core.refmap import MapFrame, MapWriter, ReferenceMap
+from lostx.core.mapwriter import MapFrame, MapWriter
+from lostx.core.refmap import ReferenceMap
 
 SCALE = 0.05
 

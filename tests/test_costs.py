@@ -1,0 +1,110 @@
+"""The sequence filter's costs, computed only where it looks: the same costs a whole-map computation gives."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from lostx.core.costs import HubNormaliser, LookedUpCosts, MapScores, local_contrast
+
+
+def contrast_by_hand(scores: np.ndarray, window: int) -> np.ndarray:
+    """SeqSLAM's enhancement over the whole map, one reference at a time."""
+    half = window // 2
+    out = np.zeros(len(scores))
+    for r in range(len(scores)):
+        near = scores[max(0, r - half) : r + half + 1]
+        near = near[np.isfinite(near)]
+        std = np.std(near, ddof=1) if len(near) > 1 else 0.0
+        out[r] = (scores[r] - near.mean()) / std if std > 0 else 0.0
+    return out
+
+
+def test_contrast_by_hand():
+    scores = np.array([1.0, 2.0, 3.0, 10.0, 3.0])
+    every = np.arange(5)
+    got = local_contrast(every, scores, np.maximum(every - 1, 0), np.minimum(every + 1, 4), every)
+    neighbourhood = np.array([2.0, 3.0, 10.0])
+    assert got[2] == pytest.approx((3.0 - neighbourhood.mean()) / neighbourhood.std(ddof=1), rel=1e-12)
+    assert got[0] == pytest.approx((1.0 - 1.5) / np.std([1.0, 2.0], ddof=1), rel=1e-12)
+    flat = local_contrast(np.arange(6), np.ones(6), np.zeros(6, int), np.full(6, 5), np.arange(6))
+    assert flat.tolist() == [0.0] * 6  # flat: no contrast
+
+
+def _single_lookup_hubs(contrast: np.ndarray, prior: float) -> np.ndarray:
+    """A reference's first cost against the prior (mean 0, variance 1 over ``prior`` frames) and itself."""
+    n = prior + 1
+    mean = contrast / n
+    return (contrast - mean) / np.sqrt(np.maximum((prior + contrast**2) / n - mean**2, 1e-6))
+
+
+def test_costs_looked_up_anywhere_in_any_order_are_the_whole_map_costs(rng):
+    n, window, prior = 300, 10, 100.0
+    scores = rng.normal(30.0, 5.0, size=(3, n))
+    costs = LookedUpCosts(n, window, prior)
+    for t in range(3):
+        costs.add(t, MapScores.of_array(scores[t]))
+    want = np.stack([_single_lookup_hubs(contrast_by_hand(s, window).astype(np.float32), prior) for s in scores])
+    # Each reference looked up once (in one of the frames): its hub statistics then hold that cost alone.
+    picked = np.stack([rng.integers(0, 3, 150), rng.permutation(n)[:150]], axis=1)
+    for block in np.array_split(picked, 7):  # in several batches, each in random order
+        got = costs.at(block[:, 0], block[:, 1])
+        np.testing.assert_allclose(got, want[block[:, 0], block[:, 1]], rtol=1e-6, atol=1e-9)
+    # Only the neighbourhoods were scored, never a whole frame.
+    assert costs.computed < 3 * n
+
+
+def test_a_cost_is_computed_once_and_kept_while_its_frame_is_in_the_window(rng):
+    calls = []
+    scores = rng.normal(size=100)
+
+    def distances(refs):
+        calls.append(len(refs))
+        return scores[refs]
+
+    costs = LookedUpCosts(100, 10, 100.0)
+    costs.add(0, MapScores(distances, 100))
+    first = costs.at(np.array(0), np.array([40, 41]))
+    again = costs.at(np.array(0), np.array([41, 40]))
+    assert again.tolist() == first[::-1].tolist() and sum(calls) == 12  # 40 and 41 with 5 either side
+    np.testing.assert_array_equal(costs.known(np.array(0), np.array([40, 60])), [first[0], np.nan])
+    costs.add(1, MapScores(distances, 100))
+    costs.drop_before(1)
+    assert np.isnan(costs.known(np.array(0), np.array([40]))).all()
+
+
+def test_removed_frames_get_the_given_worst_score_and_a_frame_without_scores_has_no_cost():
+    scores = MapScores.of_array(np.arange(20.0))
+    removed = MapScores(scores.distances, 20, removed=slice(5, 8), removed_score=99.0)
+    assert removed.at(np.array([4, 5, 7, 8])).tolist() == [4.0, 99.0, 99.0, 8.0]
+    costs = LookedUpCosts(20, 4, 100.0)
+    costs.add(0, None)
+    assert np.isnan(costs.at(np.array(0), np.array([3, 4]))).all()
+
+
+def test_verified_candidates_keep_their_own_scores():
+    scores = MapScores(lambda refs: np.ones(len(refs)), 10, factor=2.0, known=np.array([2, 7]),
+                       known_scores=np.array([0.5, 0.25]))
+    assert scores.at(np.array([7, 1, 2])).tolist() == [0.25, 2.0, 0.5]
+    eq4 = MapScores(lambda refs: np.ones(len(refs)), 10, constant=0.75, known=np.array([3]), known_scores=np.array([0.1]))
+    assert eq4.at(np.array([3, 4])).tolist() == [0.1, 0.75]
+
+
+def test_a_reference_is_normalised_by_its_own_looked_up_costs():
+    hubs = HubNormaliser(10, prior=5.0)
+    for _ in range(50):
+        hubs(np.array([3]), np.array([-2.0]))  # reference 3: looked up again and again, always close
+    out = hubs(np.array([3, 4]), np.array([-2.0, -2.0]))
+    assert out[1] < -1.4  # reference 4, first looked up now: -2 is unusual for it
+    assert out[0] > -0.5  # reference 3: -2 is what it always scores (a hub)
+
+
+def test_hub_normaliser_removes_a_hub(rng):
+    hubs = HubNormaliser(50, prior=5.0)
+    refs = np.arange(50)
+    for _ in range(200):
+        costs = rng.normal(size=50)
+        costs[7] -= 3.0  # reference 7 looks like every query
+        out = hubs(refs, costs)
+    assert abs(out[7]) < 3.0
+    assert abs(np.mean(out)) < 0.5
