@@ -44,6 +44,13 @@ GROUND = {"road": ("road", "sidewalk", "earth"), "building": ("building", "house
           "vegetation": ("tree", "plant", "grass", "field")}
 
 
+MOSAIC_LAYERS = {
+    "MOSAIC context layer (SPP projection, 128 x 32 x 32)": "spatial_pyramid_pooling_multikernel_conv/concat_projection/Relu",
+    "MOSAIC encoder block 15 (96 x 32 x 32)": "MobilenetV3/expanded_conv_15/add",
+    "MOSAIC decoder layer (64 x 64 x 64)": "decoder/decoder_feature_conv_0/Relu",
+}
+
+
 @dataclasses.dataclass(frozen=True)
 class Variant:
     name: str
@@ -52,7 +59,19 @@ class Variant:
     """Per-camera settings: both narrowed to the front camera's field of view, the rear's boot lid cut."""
 
 
-def variants() -> list[Variant]:
+def mosaic_layer(name: str, tensor: str, folder: Path) -> Variant:
+    """MOSAIC with its features read from another tensor, described by a TOML file (docs/backbones.md)."""
+    from lostx.core.backbones.mosaic import ADE20K_CLASSES
+    from lostx.core.paths import models_dir
+
+    toml = folder / f"{abs(hash(tensor))}.toml"
+    classes = ", ".join(f'"{c}"' for c in ADE20K_CLASSES)
+    toml.write_text(f'model = "{models_dir() / "mosaic-r4-ade20k31-uint8.tflite"}"\nfeatures = "{tensor}"\n'
+                    f'scores = "decoder/add"\nclasses = [{classes}]\ndefault_classes = "street"\nresize = "area"\n')
+    return Variant(name, Config(backbone=BackboneConfig(name="tflite", model_path=toml)))
+
+
+def variants(folder: Path) -> list[Variant]:
     base = Config()
 
     def with_(**sections) -> Config:
@@ -75,6 +94,8 @@ def variants() -> list[Variant]:
         Variant("window 12", with_(sequence=SequenceConfig(length=12))),
         Variant("acquisition speeds 0.6-1.4", with_(sequence=SequenceConfig(acquire_speeds=(0.6, 0.8, 1.0, 1.2, 1.4)))),
         Variant("declared prior 0.9 (drives the mapped direction)", with_(heading=HeadingConfig(declared_prior=0.9))),
+        *(mosaic_layer(name, tensor, folder) for name, tensor in MOSAIC_LAYERS.items()),
+        Variant("ESPNetv2, Cityscapes (512 x 24 x 48)", with_(backbone=BackboneConfig(name="espnetv2-cityscapes"))),
     ]
     return out
 
@@ -131,11 +152,12 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--only", nargs="+", help="variants to run (names as printed)")
     args = parser.parse_args()
-    backbone = load_backbone(BackboneConfig())
     rows = []
-    for variant in variants():
+    descriptions = Path(tempfile.mkdtemp())
+    for variant in variants(descriptions):
         if args.only and variant.name not in args.only:
             continue
+        backbone = load_backbone(variant.config.backbone)
         with tempfile.TemporaryDirectory() as tmp:
             row: dict[str, float | str] = {"variant": variant.name}
             for setup in ("S1", "S2"):
