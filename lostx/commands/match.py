@@ -15,7 +15,7 @@ from lostx.core.errors import InputError, MapError
 from lostx.core.estimate import Estimate
 from lostx.core.localizer import Localizer
 from lostx.core.refmap import ReferenceMap
-from lostx.options import add_config_options, add_viewer_options, close_viewer, config_from_args, viewer_sink_from_args
+from lostx.options import add_config_options, add_viewer_options, config_from_args, live_view, serve_until_interrupted
 from lostx.replay.folder import folder_traverse
 
 COLUMNS = ["query_index", "query_file", "match_index", "match_file", "score", "confidence", "candidates",
@@ -56,21 +56,20 @@ def run(args: argparse.Namespace) -> int:
     camera = {"front": "rear", "rear": "front"}[refmap.camera] if args.opposite else None
     queries = folder_traverse(args.queries, camera=camera, mirror=args.mirror)  # type: ignore[arg-type]
     localizer = Localizer(refmap, config)
-    sink = viewer_sink_from_args(args, refmap)
-    start = time.perf_counter()
-    rows, estimates = [], []
-    try:
+    with live_view(args, refmap) as sink:
+        start = time.perf_counter()
+        rows, estimates = [], []
         for frame in tqdm(queries, total=len(queries), desc="matching", unit="frame", disable=args.quiet, leave=False):
             estimate = localizer.step(frame)
             if sink is not None:
                 sink(frame, estimate)
             estimates.append(estimate)
             rows.append(csv_row(frame.name, estimate, refmap, args.sequence))
-    finally:
-        close_viewer(sink)
-    elapsed = time.perf_counter() - start
-    write_csv(args.out, COLUMNS + (SEQUENCE_COLUMNS if args.sequence else []) + HEADING_COLUMNS, rows)
-    print(summary_line(estimates, elapsed, args.out))
+        elapsed = time.perf_counter() - start
+        write_csv(args.out, COLUMNS + (SEQUENCE_COLUMNS if args.sequence else []) + HEADING_COLUMNS, rows)
+        print(summary_line(estimates, elapsed, args.out), flush=True)
+        # The results are written: the web viewer may stay up as long as the user likes.
+        serve_until_interrupted(sink)
     return 0
 
 
