@@ -121,10 +121,10 @@ def add_viewer_options(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--grpc-port", type=int, default=GRPC_PORT, metavar="PORT",
                        help=f"port the web viewer reads the recording from (default {GRPC_PORT}; 0: a free one)")
     group.add_argument("--viewer-rate", type=float, default=10.0, metavar="HZ",
-                       help="most frames per second whose images, label maps and lines are logged "
+                       help="most frames per second whose images, label maps, lines and sequence window are logged "
                             "(the rest of the view is logged every frame; 0: every frame; default 10)")
     group.add_argument("--viewer-memory", default=DEFAULT_MEMORY_LIMIT, metavar="LIMIT",
-                       help=f"memory limit of the spawned viewer and the web server's buffer, e.g. 4GiB or 25%% "
+                       help=f"memory limit of the native viewer and the web viewer's recording buffer, e.g. 4GiB or 25%% "
                             f"(oldest data dropped first; default {DEFAULT_MEMORY_LIMIT})")
 
 

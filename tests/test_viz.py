@@ -9,6 +9,7 @@ from __future__ import annotations
 import dataclasses
 import io
 import os
+import uuid
 from pathlib import Path
 
 import numpy as np
@@ -16,6 +17,7 @@ import pytest
 from PIL import Image
 
 rr = pytest.importorskip("rerun")
+import rerun.blueprint as rrb  # noqa: E402
 from rerun.chunk import RrdReader  # noqa: E402
 
 from lostx.core.config import Config  # noqa: E402
@@ -26,6 +28,7 @@ from lostx.core.verify import verify  # noqa: E402
 from lostx.core.refmap import ReferenceMap  # noqa: E402
 from lostx.replay.folder import folder_traverse  # noqa: E402
 from lostx.viz import entities as e  # noqa: E402
+from lostx.viz.blueprint import build_blueprint  # noqa: E402
 from lostx.viz.colours import class_colours  # noqa: E402
 from lostx.viz.geometry import GAP, Panel, display_size, legend_entries  # noqa: E402
 from lostx.viz.sequence_window import CELL_WIDTH, band_rgb, on_map_columns, row_height, sequence_band, trajectory  # noqa: E402
@@ -142,6 +145,36 @@ def test_every_entity_has_one_time_point_per_frame(front):
     # The map has no positions: no map entities.
     assert not any(entity.startswith("map") for entity in rec.rows)
     assert rec.blueprints, "the default layout travels in the file"
+
+
+def test_each_frame_reaches_the_viewer_whole_and_in_order(day_map, robotcar, tmp_path):
+    # The panels show one frame at a time: every frame's status, table, bars and series are sent
+    # together, before any of the next frame's, whatever Rerun's batching would do by itself
+    # (here told to wait 10 s, so that only the sink's own hand-over per frame splits the chunks).
+    out = tmp_path / "batched.rrd"
+    rec = rr.RecordingStream("lostx", recording_id=str(uuid.uuid4()),
+                             batcher_config=rr.ChunkBatcherConfig(flush_tick=10.0, flush_num_bytes=1 << 30,
+                                                                  flush_num_rows=1 << 20))
+    rec.set_sinks(rr.FileSink(str(out)))
+    localizer = Localizer(day_map, Config())
+    # Images only for the first frame: what is in step here is the light part's own doing.
+    sink = RerunSink(day_map, None, dataclasses.replace(SYNC, heavy_hz=1e-6), recording=rec)
+    frames = list(folder_traverse(robotcar / "night"))[:4]
+    for frame in frames:
+        sink(frame, localizer.step(frame))
+    sink.close()
+    light = {e.STATUS, e.CANDIDATE_TABLE, e.CANDIDATE_SCORES, e.CONFIDENCE, e.MATCH_INDEX, e.SEQUENCE_COST, e.SPEED}
+    order = []
+    for chunk in RrdReader(out).stream():
+        entity = chunk.entity_path.lstrip("/")
+        batch = chunk.to_record_batch()
+        if entity in light and "frame" in batch.schema.names:
+            in_chunk = set(batch.column("frame").to_pylist())
+            assert len(in_chunk) == 1, (entity, in_chunk)
+            order.append((in_chunk.pop(), entity))
+    assert [f for f, _ in order] == sorted(f for f, _ in order)
+    for frame in frames:
+        assert {entity for f, entity in order if f == frame.id} == light
 
 
 def test_logged_values_equal_the_estimates(front):
@@ -357,6 +390,32 @@ def test_reference_images_are_read_once_across_runs(day_map, robotcar, tmp_path)
                for m, width, quality in ((day_map, 640, 80), (ReferenceMap.open(rebuilt), 640, 80),
                                          (day_map, 320, 80), (day_map, 640, 70))}
     assert len(folders) == 4
+
+
+def view_names(container) -> list[str]:
+    names = []
+    for item in container.contents:
+        names += view_names(item) if isinstance(item, rrb.Container) else [str(item.name)]
+    return names
+
+
+SEQUENCE_PANELS = {"Sequence cost", "Speed ref/frame", "Sequence window"}
+
+
+def test_without_the_sequence_filter_its_empty_panels_leave_the_layout(day_map, robotcar, tmp_path):
+    assert SEQUENCE_PANELS <= set(view_names(build_blueprint(10, (512, 320)).root_container))
+    assert "Map" in view_names(build_blueprint(2, None, route=np.array([[0.0, 0.0], [10.0, 5.0]])).root_container)
+    config = Config()
+    localizer = Localizer(day_map, dataclasses.replace(config, sequence=dataclasses.replace(config.sequence, enabled=False)))
+    sink = RerunSink(day_map, ViewerOutput(rrd=tmp_path / "single.rrd"), SYNC)
+    assert SEQUENCE_PANELS <= set(view_names(sink.blueprint.root_container))
+    frame = folder_traverse(robotcar / "night").frame(0)
+    sink(frame, localizer.step(frame))
+    sink.close()
+    shown = set(view_names(sink.blueprint.root_container))
+    assert not SEQUENCE_PANELS & shown and {"Confidence", "Route position", "Status", "Top-10"} <= shown
+    status = Recording(tmp_path / "single.rrd").column(e.STATUS, "TextDocument:text").values[0][0]
+    assert "(single-frame verification, lower is better) · sequence filter off" in status
 
 
 # -- pacing and the background thread ---------------------------------------------------------------

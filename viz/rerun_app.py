@@ -28,6 +28,8 @@ ALTERNATIVES = "use --web (a browser), --rrd FILE (open it later with `rerun FIL
 """What to do when no native viewer can start: said with every such message."""
 START_TIMEOUT = 15.0
 """Seconds a started Rerun program gets to listen on its port."""
+WINDOW_SETTLE = 2.0
+"""Seconds the native viewer must survive after it listens: where no window can open, it exits within them."""
 
 
 class ViewerUnavailable(RuntimeError):
@@ -75,9 +77,12 @@ def rerun_env(config_root: Path | None = None) -> dict[str, str]:
         executable = viewer_executable()
         if executable is None:
             raise ViewerUnavailable("the `rerun` program is not installed (it comes with rerun-sdk)")
-        root.mkdir(parents=True, exist_ok=True)
-        done = subprocess.run([executable, "analytics", "disable"], env=env, stdin=subprocess.DEVNULL,
-                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, timeout=60, check=False)
+        try:
+            root.mkdir(parents=True, exist_ok=True)
+            done = subprocess.run([executable, "analytics", "disable"], env=env, stdin=subprocess.DEVNULL,
+                                  stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, timeout=60, check=False)
+        except (OSError, subprocess.TimeoutExpired) as exc:
+            raise ViewerUnavailable(f"could not prepare Rerun's configuration folder {root} ({exc})") from None
         if done.returncode != 0 or not _analytics_disabled(settings):
             raise ViewerUnavailable(f"could not turn Rerun's analytics off in {root} (rerun exited with "
                                     f"code {done.returncode}); not starting a Rerun program with them on")
@@ -143,8 +148,9 @@ class Started:
 
 
 def start(args: list[str], port: int, what: str, *, tied: bool, env: dict[str, str] | None = None,
-          timeout: float = START_TIMEOUT) -> Started:
-    """Run ``rerun ARGS`` and wait until it listens on 127.0.0.1:``port``.
+          timeout: float = START_TIMEOUT, settle: float = 0.0) -> Started:
+    """Run ``rerun ARGS`` and wait until it listens on 127.0.0.1:``port`` (and is still running
+    ``settle`` seconds later).
 
     ``tied``: the program ends with this process (it serves nothing once lostx is gone);
     otherwise it is detached, like a window the user closes when done.
@@ -173,6 +179,13 @@ def start(args: list[str], port: int, what: str, *, tied: bool, env: dict[str, s
             started.stop()
             raise ViewerUnavailable(f"the {what} did not start within {timeout:.0f} s"
                                     + (f" ({reason})" if reason else ""))
+        time.sleep(0.05)
+    settled = time.monotonic() + settle
+    while time.monotonic() < settled:
+        if process.poll() is not None:
+            reason = last_words(log)
+            started.stop()
+            raise ViewerUnavailable(f"the {what} did not start ({reason or f'exit code {process.returncode}'})")
         time.sleep(0.05)
     # The program keeps its output file open; its name is not needed any more.
     log.unlink(missing_ok=True)
@@ -220,5 +233,6 @@ def spawn_viewer(port: int, memory_limit: str) -> Started | None:
         raise ViewerUnavailable(reason)
     if accepts_connections(port):
         return None
+    # The viewer listens before it opens its window; a window that cannot open ends it a moment later.
     return start(["--port", str(port), "--bind", "127.0.0.1", "--memory-limit", memory_limit, "--expect-data-soon"],
-                 port, "native viewer", tied=False)
+                 port, "native viewer", tied=False, settle=WINDOW_SETTLE)

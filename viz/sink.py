@@ -5,13 +5,14 @@ Per frame it logs
 - light entities, every frame, on the caller's thread: confidence, sequence
   cost, speed, correspondence count and the matched reference index as time
   series; a status text; the top-10 candidates as a table and as bars at their
-  reference indices; the sequence window as dots; the estimate (and the true
-  position, when the frame carries one) on the map. They are sent together at
-  the end of each frame, so that no panel runs ahead of another;
+  reference indices; the estimate (and the true position, when the frame carries
+  one) on the map. They are sent together at the end of each frame, so that no
+  panel runs ahead of another;
 - heavy entities, at most ``heavy_hz`` frames a second, on a background thread
-  (see :mod:`.worker`): the query image (mirrored when its camera faces opposite
-  to the map's), the matched reference image, both label maps, and the
-  correspondence lines (:mod:`.match_view`).
+  (see :mod:`.worker`): the query image (mirrored when it views the route the
+  opposite way to the map), the matched reference image, both label maps, the
+  correspondence lines and their legend (:mod:`.match_view`), and the sequence
+  filter's window (a snapshot with a label per cell: tens of kilobytes).
 
 What is drawn is computed in :mod:`.geometry`, :mod:`.images` and
 :mod:`.summary`; this module decides what is logged where and when.
@@ -63,6 +64,8 @@ log = logging.getLogger(__name__)
 
 WORKER_TIMEOUT = 60.0
 """Seconds :meth:`RerunSink.flush` and :meth:`RerunSink.close` wait for the background thread (one frame's logging)."""
+CLOSE_TIMEOUT = 30.0
+"""Seconds :meth:`RerunSink.close` waits for the destinations to take the last data."""
 EPOCH_AFTER = 1e8
 """Frame timestamps above this many seconds are Unix time (1973 on); below it, seconds since the stream began."""
 
@@ -164,7 +167,13 @@ class RerunSink:
         """Wait until everything submitted so far is logged and handed to the destinations."""
         if self.worker is not None:
             self.worker.wait_idle(timeout)
-        self.rec.flush()
+        self._hand_over(timeout)
+
+    def _hand_over(self, timeout: float) -> None:
+        try:
+            self.rec.flush(timeout_sec=timeout)
+        except RuntimeError as exc:  # a viewer closed or gone: the other destinations still get everything
+            log.warning("the live view could not hand everything over: %s", exc)
 
     def close(self) -> None:
         """Finish the pending heavy frame, flush, and close the destinations (an .rrd gets its footer)."""
@@ -174,7 +183,7 @@ class RerunSink:
         try:
             if self.worker is not None:
                 self.worker.close(WORKER_TIMEOUT)
-            self.rec.flush()
+            self._hand_over(CLOSE_TIMEOUT)
             self.rec.disconnect()
         finally:
             self.opened.close()
@@ -238,7 +247,6 @@ class RerunSink:
         self._log_series(est)
         self.rec.log(e.STATUS, rr.TextDocument(status_markdown(frame, est, self.map), media_type="text/markdown"))
         self._log_candidates(est)
-        self._log_sequence(est)
         if self.map.positions is not None:
             self._log_map(frame, est)
         # Start sending this frame's chunks now (without waiting): the panels get one frame at a time.
@@ -255,6 +263,7 @@ class RerunSink:
     def _log_heavy(self, job: _HeavyJob) -> None:
         self._set_time(job.frame)
         self.match_view.log(job.frame, job.estimate)
+        self._log_sequence(job.estimate)
         self.rec.flush(timeout_sec=0.0)
 
     def _log_series(self, est: Estimate) -> None:
