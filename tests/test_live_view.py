@@ -314,6 +314,15 @@ def test_web_page_policy_keeps_the_browser_on_this_machine():
     assert host_of("127.0.0.1:9090") == "127.0.0.1" and host_of("[::1]:9090") == "[::1]" and host_of(None) == "127.0.0.1"
 
 
+def test_the_recording_is_readable_only_by_the_web_viewers_own_page():
+    from lostx.viz.output import page_origins
+
+    assert page_origins("127.0.0.1", 9090) == ["http://127.0.0.1:9090", "http://localhost:9090"]
+    assert page_origins("192.168.1.5", 8000) == ["http://192.168.1.5:8000", "http://127.0.0.1:8000",
+                                                  "http://localhost:8000"]
+    assert page_origins("0.0.0.0", 9090) == ["http://*:9090"]  # any address of this machine, that port only
+
+
 def test_web_address_must_be_an_ip_address(day_map, robotcar, tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:
         main(["match", str(day_map.path), str(robotcar / "night"), "--out", str(tmp_path / "m.csv"), "--web", "map"])

@@ -158,7 +158,7 @@ def test_each_frame_reaches_the_viewer_whole_and_in_order(day_map, robotcar, tmp
     rec.set_sinks(rr.FileSink(str(out)))
     localizer = Localizer(day_map, Config())
     # Images only for the first frame: what is in step here is the light part's own doing.
-    sink = RerunSink(day_map, None, dataclasses.replace(SYNC, heavy_hz=1e-6), recording=rec)
+    sink = RerunSink(day_map, None, dataclasses.replace(SYNC, heavy_hz=1e-6, frame_by_frame=True), recording=rec)
     frames = list(folder_traverse(robotcar / "night"))[:4]
     for frame in frames:
         sink(frame, localizer.step(frame))

@@ -70,7 +70,7 @@ def open_output(recording: rr.RecordingStream, output: ViewerOutput, blueprint: 
     if output.web:
         sinks.append(rr.GrpcServerSink(bind_ip=output.web_address, port=output.grpc_port,
                                        server_memory_limit=output.memory_limit,
-                                       cors_allow_origin=_page_origins(output.web_address, output.web_port)))
+                                       cors_allow_origin=page_origins(output.web_address, output.web_port)))
     if sinks:
         recording.set_sinks(*sinks, default_blueprint=blueprint)
     opened.destinations = len(sinks)
@@ -94,12 +94,12 @@ def _with_ports(output: ViewerOutput) -> ViewerOutput:
     return dataclasses.replace(output, **ports)
 
 
-def _page_origins(address: str, web_port: int) -> list[str]:
+def page_origins(address: str, web_port: int) -> list[str]:
     """Origins whose pages may read the recording from the gRPC server: the web viewer's own."""
     if address in ("0.0.0.0", "::"):
         return [f"http://*:{web_port}"]
     host = f"[{address}]" if ":" in address else address
-    return [f"http://{host}:{web_port}", f"http://127.0.0.1:{web_port}", f"http://localhost:{web_port}"]
+    return list(dict.fromkeys([f"http://{host}:{web_port}", f"http://127.0.0.1:{web_port}", f"http://localhost:{web_port}"]))
 
 
 def _serve_page(opened: OpenedOutput, output: ViewerOutput) -> None:

@@ -22,7 +22,7 @@ BAND_HEIGHT = 200.0
 """Scene units the window's rows share, however many there are."""
 INDEX_GAP = 6.0
 """Reference indices hang below the band from this far under it."""
-KEY_GAP = 62.0
+KEY_GAP = 95.0
 """The colour key's dots sit this far below the band."""
 KEY_ROOM = 40.0
 KEY_DOT = 10.0

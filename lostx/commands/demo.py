@@ -11,7 +11,6 @@ on Ctrl-C and on errors).
 from __future__ import annotations
 
 import argparse
-import signal
 import tempfile
 import time
 from pathlib import Path
@@ -25,7 +24,14 @@ from lostx.core.build import build_map
 from lostx.core.describe import LostDescriber
 from lostx.core.paths import cache_dir, data_dir
 from lostx.core.refmap import ReferenceMap
-from lostx.options import VIEWER_NOTICE, add_backbone_options, add_viewer_options, config_from_args, viewer_args
+from lostx.options import (
+    VIEWER_NOTICE,
+    add_backbone_options,
+    add_viewer_options,
+    config_from_args,
+    terminate_as_interrupt,
+    viewer_args,
+)
 from lostx.replay.folder import folder_traverse
 from lostx.stream.client import Listener
 from lostx.stream.errors import StreamError
@@ -74,21 +80,14 @@ def run(args: argparse.Namespace) -> int:
     refmap = demo_map(data / "day", workdir / f"robotcar-day-{config.backbone.name}", config, args.rebuild)
     night = folder_traverse(data / "night")
     # SIGTERM ends the demo like Ctrl-C does, through the cleanup below.
-    previous = signal.signal(signal.SIGTERM, _raise_interrupt)
-    try:
-        with tempfile.TemporaryDirectory(prefix="lostx-demo-") as tmp, ProcessGroup(log_dir=tmp) as procs:
-            notices = _ViewerNotices(procs)
-            answers, final = _stream(args, refmap, night, Path(tmp), procs, notices)
-            _summary(answers, len(night), final)
-            if args.web:
-                _keep_serving(procs, notices)
-    finally:
-        signal.signal(signal.SIGTERM, previous)
+    with terminate_as_interrupt(), tempfile.TemporaryDirectory(prefix="lostx-demo-") as tmp, \
+            ProcessGroup(log_dir=tmp) as procs:
+        notices = _ViewerNotices(procs)
+        answers, final = _stream(args, refmap, night, Path(tmp), procs, notices)
+        _summary(answers, len(night), final)
+        if args.web:
+            _keep_serving(procs, notices)
     return 0
-
-
-def _raise_interrupt(_signum: int, _frame: object) -> None:
-    raise KeyboardInterrupt
 
 
 def _backbone_args(args: argparse.Namespace) -> list[str]:
