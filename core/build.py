@@ -36,7 +36,7 @@ class BuildSummary:
 
 
 def _windowed(
-    frames: Iterable[Frame], describe: Callable[[np.ndarray], DescribedFrame], window: int
+    frames: Iterable[Frame], describe: Callable[[np.ndarray], DescribedFrame], geometry: Geometry, window: int
 ) -> Iterable[tuple[Frame, DescribedFrame, np.ndarray]]:
     """Yield each frame with its class means averaged over a centred window (clipped at the ends).
 
@@ -58,7 +58,7 @@ def _windowed(
 
     count = 0
     for i, frame in enumerate(frames):
-        held.append((i, frame, describe(frame.image)))
+        held.append((i, frame, describe(geometry.prepare(frame.image, frame.camera))))
         count = i + 1
         if i - half >= done:
             yield finish(done, count)
@@ -110,8 +110,8 @@ def build_map(
     with MapWriter(out, kind, meta, backbone=info, overwrite=overwrite) as writer:
         try:
             if isinstance(describer, LostDescriber):
-                describe = lambda image: describer(geometry.prepare(image))  # noqa: E731
-                for frame, described, mu in _windowed(_ticking(frames, bar), describe, config.lost.reference_window):
+                for frame, described, mu in _windowed(_ticking(frames, bar), describer, geometry,
+                                                      config.lost.reference_window):
                     profile.add(frame.image, described.labels)
                     writer.add(
                         MapFrame(frame.name, describer.descriptor(described, mu), described.evidence,
