@@ -113,6 +113,7 @@ def build_map(
                 for frame, described, mu in _windowed(_ticking(frames, bar), describer, geometry,
                                                       config.lost.reference_window):
                     profile.add(frame.image, described.labels)
+                    writer.cameras.append(frame.camera)
                     writer.add(
                         MapFrame(frame.name, describer.descriptor(described, mu), described.evidence,
                                  described.appearance(), frame.position, frame.timestamp)
@@ -120,6 +121,7 @@ def build_map(
             else:
                 for frame in _ticking(frames, bar):
                     profile.add(frame.image)
+                    writer.cameras.append(frame.camera)
                     writer.add(MapFrame(frame.name, describer(frame.image), position=frame.position,
                                         timestamp=frame.timestamp))
         finally:
@@ -127,6 +129,9 @@ def build_map(
         if not writer.frames:
             raise MapError("the traverse has no frames; nothing to build")
         writer.metadata["input"] = profile.profile().to_dict()
+        # The map's camera is what its frames declare, unless the caller says otherwise: a declared query
+        # camera is read against it (which way the query views and drives the route).
+        writer.metadata.setdefault("camera", writer.cameras[0] if len(set(writer.cameras)) == 1 else None)
         path = writer.commit()
     refmap = ReferenceMap.open(path)
     backbone = describer.backbone if isinstance(describer, LostDescriber) else None

@@ -97,6 +97,8 @@ class MapWriter:
         self.backbone = backbone
         self.overwrite = overwrite
         self.frames: list[MapFrame] = []
+        self.cameras: list[str | None] = []
+        """The camera each frame declared (the map records it when they agree)."""
         self.nbytes = 0
         """Bytes of the committed map's files."""
         self._tmp = self.out.parent / f".{self.out.name}.partial-{os.getpid()}"
