@@ -20,15 +20,18 @@ on all modes alike. Reported per mode:
 Modes:
 
 - ``off``: no sink;
-- ``rrd``: the sink as ``--rrd FILE`` makes it (images, label maps and lines
-  at most 10 frames a second, on a background thread);
+- ``rrd``: the sink as ``--rrd FILE`` makes it (images, label maps, lines and
+  the sequence window at most 10 frames a second, on a background thread);
+- ``rrd-frame-by-frame``: as ``rrd``, but each frame handed over whole, as the sink does for a
+  live viewer (``SinkSettings.frame_by_frame``), instead of letting Rerun batch frames: what
+  keeping the panels in step costs;
 - ``rrd-new-refs``: as ``rrd``, but no reference image is kept: each match to
   another reference decodes its original image (the first run along a long
   route, where every match is new; on this 10-frame map the memory cache would
   otherwise hold them all);
 - ``rrd-disk-refs``: the same, but each reference's JPEG is read from the disk
   cache a previous run left (later runs against the same map);
-- ``rrd-every-frame``: images, label maps and lines for every frame (``--viewer-rate 0``);
+- ``rrd-every-frame``: images, label maps, lines and the sequence window for every frame (``--viewer-rate 0``);
 - ``rrd-inline``: every frame, on the localizer's own thread (the whole logging
   cost lands on the localizer).
 """
@@ -67,6 +70,7 @@ def modes(disk: Path) -> dict[str, SinkSettings | None]:
     return {
         "off": None,
         "rrd": SinkSettings(reference_disk_cache=disk / "rrd"),
+        "rrd-frame-by-frame": SinkSettings(frame_by_frame=True, reference_disk_cache=disk / "frame-by-frame"),
         "rrd-new-refs": SinkSettings(reference_cache=1, reference_disk_cache=None),
         "rrd-disk-refs": SinkSettings(reference_cache=1, reference_disk_cache=disk / "warm"),
         "rrd-every-frame": SinkSettings(heavy_hz=None, reference_disk_cache=disk / "every-frame"),

@@ -37,22 +37,39 @@ from lostx.replay.dataset import SourceOptions, open_traverse
 
 SCENE = data_dir() / "nuscenes-frontrear" / "scene-0523"
 ROBOTCAR = data_dir() / "robotcar-daynight"
-HFOV = {"front": 65.1, "rear": 90.2}  # from calibration.json: 2 atan(800 / fx)
+CAMERAS = CameraConfig(hfov_deg={"front": 65.1, "rear": 90.2}, view_hfov_deg=65.1, ignore_bottom={"rear": 0.08})
+"""docs/examples/nuscenes-cameras.toml: fields of view from calibration.json (2 atan(800 / fx)), the boot lid."""
 STREET5 = {"road": ("road",), "building": ("building", "house"), "vegetation": ("tree", "plant", "grass"),
            "sidewalk": ("sidewalk",), "sky": ("sky",)}
-GROUND = {"road": ("road", "sidewalk", "earth"), "building": ("building", "house", "wall"),
-          "vegetation": ("tree", "plant", "grass", "field")}
+NARROW = {"road": ("road",), "building": ("building", "house"), "vegetation": ("tree", "plant", "grass")}
+
+
+MOSAIC_LAYERS = {
+    "MOSAIC context layer (SPP projection, 128 x 32 x 32)": "spatial_pyramid_pooling_multikernel_conv/concat_projection/Relu",
+    "MOSAIC encoder block 15 (96 x 32 x 32)": "MobilenetV3/expanded_conv_15/add",
+    "MOSAIC decoder layer (64 x 64 x 64)": "decoder/decoder_feature_conv_0/Relu",
+}
 
 
 @dataclasses.dataclass(frozen=True)
 class Variant:
     name: str
     config: Config
-    cameras: bool = False
-    """Per-camera settings: both narrowed to the front camera's field of view, the rear's boot lid cut."""
 
 
-def variants() -> list[Variant]:
+def mosaic_layer(name: str, tensor: str, folder: Path) -> Variant:
+    """MOSAIC with its features read from another tensor, described by a TOML file (docs/backbones.md)."""
+    from lostx.core.backbones.mosaic import ADE20K_CLASSES
+    from lostx.core.paths import models_dir
+
+    toml = folder / f"{abs(hash(tensor))}.toml"
+    classes = ", ".join(f'"{c}"' for c in ADE20K_CLASSES)
+    toml.write_text(f'model = "{models_dir() / "mosaic-r4-ade20k31-uint8.tflite"}"\nfeatures = "{tensor}"\n'
+                    f'scores = "decoder/add"\nclasses = [{classes}]\ndefault_classes = "street"\nresize = "area"\n')
+    return Variant(name, Config(backbone=BackboneConfig(name="tflite", model_path=toml)))
+
+
+def variants(folder: Path) -> list[Variant]:
     base = Config()
 
     def with_(**sections) -> Config:
@@ -62,29 +79,29 @@ def variants() -> list[Variant]:
         Variant("defaults", base),
         Variant("fit crop", with_(backbone=dataclasses.replace(base.backbone, fit="crop"))),
         Variant("fit pad", with_(backbone=dataclasses.replace(base.backbone, fit="pad"))),
-        Variant("cameras: common field of view, boot lid cut", base, cameras=True),
+        Variant("cameras: common field of view, boot lid cut", with_(camera=CAMERAS)),
         Variant("scoring eq4", with_(verify=VerifyConfig(scoring="eq4"))),
         Variant("scoring released", with_(verify=VerifyConfig(scoring="released"))),
         Variant("verify top 20", with_(verify=VerifyConfig(top_k=20))),
         Variant("density test in both images", with_(verify=VerifyConfig(density_filter="both"))),
         Variant("classes + sidewalk, sky", with_(lost=LostConfig(classes=STREET5))),
-        Variant("classes grouped wider (ground, structure, plants)", with_(lost=LostConfig(classes=GROUND))),
+        Variant("classes grouped narrowly (road; building, house; tree, plant, grass)",
+                with_(lost=LostConfig(classes=NARROW))),
         Variant("class means over 5 map frames", with_(lost=LostConfig(reference_window=5))),
         Variant("class means over 3 query frames", with_(lost=LostConfig(query_window=3))),
         Variant("window 8", with_(sequence=SequenceConfig(length=8))),
         Variant("window 12", with_(sequence=SequenceConfig(length=12))),
         Variant("acquisition speeds 0.6-1.4", with_(sequence=SequenceConfig(acquire_speeds=(0.6, 0.8, 1.0, 1.2, 1.4)))),
         Variant("declared prior 0.9 (drives the mapped direction)", with_(heading=HeadingConfig(declared_prior=0.9))),
+        *(mosaic_layer(name, tensor, folder) for name, tensor in MOSAIC_LAYERS.items()),
+        Variant("ESPNetv2, Cityscapes (512 x 24 x 48)", with_(backbone=BackboneConfig(name="espnetv2-cityscapes"))),
+        Variant("cameras + verify top 20", with_(camera=CAMERAS, verify=VerifyConfig(top_k=20))),
+        Variant("cameras + density test in both images", with_(camera=CAMERAS, verify=VerifyConfig(density_filter="both"))),
+        Variant("cameras + window 8", with_(camera=CAMERAS, sequence=SequenceConfig(length=8))),
+        Variant("cameras + classes grouped narrowly", with_(camera=CAMERAS, lost=LostConfig(classes=NARROW))),
+        Variant("cameras + ESPNetv2", with_(camera=CAMERAS, backbone=BackboneConfig(name="espnetv2-cityscapes"))),
     ]
     return out
-
-
-def camera_config(config: Config, side: str, cameras: bool) -> Config:
-    if not cameras:
-        return config
-    camera = CameraConfig(hfov_deg=HFOV[side], view_hfov_deg=HFOV["front"],
-                          ignore_bottom=0.08 if side == "rear" else 0.0)
-    return dataclasses.replace(config, camera=camera)
 
 
 def run_setup(variant: Variant, setup: str, backbone, workdir: Path) -> dict[str, float]:
@@ -95,15 +112,14 @@ def run_setup(variant: Variant, setup: str, backbone, workdir: Path) -> dict[str
     if setup == "S2":
         queries = queries.reversed()
     out = workdir / f"{setup}-{ref_side}"
-    build_config = camera_config(variant.config, ref_side, variant.cameras)
-    build_map(reference, out, build_config, LostDescriber(backbone, build_config.lost), progress=False, overwrite=True)
+    build_map(reference, out, variant.config, LostDescriber(backbone, variant.config.lost), progress=False,
+              overwrite=True)
     refmap = ReferenceMap.open(out)
     truths = from_positions(queries.positions, refmap.positions, [7.5, 15.0])
     row: dict[str, float] = {}
-    query_config = camera_config(variant.config, query_side, variant.cameras)
     for mode in ("single", "sequence"):
-        config = dataclasses.replace(query_config, sequence=dataclasses.replace(query_config.sequence,
-                                                                                enabled=mode == "sequence"))
+        config = dataclasses.replace(variant.config, sequence=dataclasses.replace(variant.config.sequence,
+                                                                                  enabled=mode == "sequence"))
         localizer = Localizer(refmap, config, backbone)
         estimates = [localizer.step(frame) for frame in queries]
         predictions = np.array([e.match_index for e in estimates])
@@ -131,11 +147,12 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--only", nargs="+", help="variants to run (names as printed)")
     args = parser.parse_args()
-    backbone = load_backbone(BackboneConfig())
     rows = []
-    for variant in variants():
+    descriptions = Path(tempfile.mkdtemp())
+    for variant in variants(descriptions):
         if args.only and variant.name not in args.only:
             continue
+        backbone = load_backbone(variant.config.backbone)
         with tempfile.TemporaryDirectory() as tmp:
             row: dict[str, float | str] = {"variant": variant.name}
             for setup in ("S1", "S2"):

@@ -98,10 +98,12 @@ def describe_chunks(frames: FrameSource, start: int, stop: int, config: Config,
 
 
 def _windowed(
-    frames: Iterable[Frame], describe: Callable[[np.ndarray], DescribedFrame], window: int, emit_from: int = 0
+    frames: Iterable[Frame], describe: Callable[[np.ndarray], DescribedFrame], geometry: Geometry, window: int,
+    emit_from: int = 0,
 ) -> Iterator[tuple[int, Frame, DescribedFrame, np.ndarray]]:
     """Yield each frame (from the ``emit_from``-th on; those before only lend their class means) with its
-    class means averaged over a centred window, clipped at the ends of ``frames``.
+    class means averaged over a centred window, clipped at the ends of ``frames``. Each image is fitted to
+    the backbone by ``geometry`` for the camera its frame declares.
 
     Frames stream through: frame j is finished as soon as frame j + window // 2
     has been described, so at most ``window`` frames are held at a time.
@@ -121,7 +123,7 @@ def _windowed(
 
     count = 0
     for i, frame in enumerate(frames):
-        held.append((i, frame, describe(frame.image)))
+        held.append((i, frame, describe(geometry.prepare(frame.image, frame.camera))))
         count = i + 1
         if i - half >= done:
             yield finish(done, count)
@@ -141,7 +143,7 @@ def describe_range(frames: Iterable[Frame] | FrameSource, start: int, stop: int 
     if isinstance(describer, ThumbnailDescriber):
         for index, frame in _cut(frames, start, stop):
             yield index, MapFrame(frame.name, describer(frame.image), position=frame.position,
-                                  timestamp=frame.timestamp, looks=looks(frame.image))
+                                  timestamp=frame.timestamp, looks=looks(frame.image), camera=frame.camera)
         return
     geometry = Geometry.for_backbone(config.camera, config.camera.view_hfov_deg, config.backbone.fit,
                                      describer.backbone.info)
@@ -149,15 +151,14 @@ def describe_range(frames: Iterable[Frame] | FrameSource, start: int, stop: int 
     half = config.lost.reference_window // 2
     first = max(0, start - half)
     cut = (frame for _, frame in _cut(frames, first, None if stop is None else stop + half))
-    described = _windowed(cut, lambda image: describer(geometry.prepare(image)), config.lost.reference_window,
-                          emit_from=start - first)
+    described = _windowed(cut, describer, geometry, config.lost.reference_window, emit_from=start - first)
     for j, frame, desc, mu in described:
         index = first + j
         if stop is not None and index >= stop:
             break
         yield index, MapFrame(frame.name, describer.descriptor(desc, mu), desc.evidence, desc.appearance(),
                               frame.position, frame.timestamp, looks(frame.image),
-                              label_frequencies(desc.labels, n_labels))
+                              label_frequencies(desc.labels, n_labels), frame.camera)
 
 
 def _cut(frames: Iterable[Frame] | FrameSource, start: int, stop: int | None) -> Iterator[tuple[int, Frame]]:

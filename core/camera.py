@@ -5,7 +5,7 @@ degrees), and a rear camera often sees the vehicle's own body along its bottom
 edge. Before the network, each frame is:
 
 1. cut: ``ignore_top`` / ``ignore_bottom`` (fractions of the height) dropped;
-2. narrowed to the common field of view ``view_hfov_deg`` when its own
+2. narrowed to the common field of view ``view_hfov_deg`` when its camera's
    ``hfov_deg`` is wider: a centred crop of width W tan(view/2) / tan(hfov/2)
    (a pinhole camera; the height is cropped in proportion, so the scale of
    the scene matches between the cameras);
@@ -13,8 +13,10 @@ edge. Before the network, each frame is:
    whole frame seen), ``crop`` (the centre that has the input's aspect) or
    ``pad`` (black borders).
 
-All three are no-ops with the default settings. A map records the settings its
-frames were prepared with; queries are prepared to its field of view.
+Steps 1 and 2 take the settings of the camera the frame declares (``front``,
+``rear``); all three are no-ops with the default settings. A map records the
+settings its frames were prepared with; queries are prepared to its field of
+view.
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from .config import CameraConfig, Fit
+from .frame import Camera
 from .errors import InputError
 
 if TYPE_CHECKING:
@@ -34,9 +37,9 @@ if TYPE_CHECKING:
 
 @dataclass(frozen=True)
 class Geometry:
-    """How one camera's frames are prepared for one map."""
+    """How the frames of each camera are prepared for one map."""
 
-    camera: CameraConfig
+    cameras: CameraConfig
     view_hfov_deg: float | None
     """The map's common field of view (None: none)."""
     fit: Fit
@@ -44,24 +47,29 @@ class Geometry:
     """Width / height of the network input (None: unknown, no fitting)."""
 
     @classmethod
-    def for_backbone(cls, camera: CameraConfig, view_hfov_deg: float | None, fit: Fit,
+    def for_backbone(cls, cameras: CameraConfig, view_hfov_deg: float | None, fit: Fit,
                      info: "BackboneInfo") -> "Geometry":
         size = info.input_size
-        return cls(camera, view_hfov_deg, fit, None if size is None else size[0] / size[1])
+        return cls(cameras, view_hfov_deg, fit, None if size is None else size[0] / size[1])
 
-    def prepare(self, image: np.ndarray) -> np.ndarray:
-        """The frame as the network should see it (see the module docstring)."""
-        out = cut_rows(image, self.camera.ignore_top, self.camera.ignore_bottom)
-        if self.view_hfov_deg is not None and self.camera.hfov_deg is not None:
-            out = narrow_to_fov(out, self.camera.hfov_deg, self.view_hfov_deg)
+    def prepare(self, image: np.ndarray, camera: Camera | None) -> np.ndarray:
+        """The frame of ``camera`` (as the frame declares it) as the network should see it."""
+        c = self.cameras
+        out = image
+        if camera is not None:
+            out = cut_rows(out, c.ignore_top.get(camera, 0.0), c.ignore_bottom.get(camera, 0.0))
+            hfov = c.hfov_deg.get(camera)
+            if self.view_hfov_deg is not None and hfov is not None:
+                out = narrow_to_fov(out, hfov, self.view_hfov_deg)
         if self.input_aspect is not None:
             out = fit_aspect(out, self.input_aspect, self.fit)
         return np.ascontiguousarray(out)
 
     def record(self) -> dict[str, Any]:
         """What a map keeps of how its frames were prepared."""
-        return {"view_hfov_deg": self.view_hfov_deg, "fit": self.fit, "hfov_deg": self.camera.hfov_deg,
-                "ignore_top": self.camera.ignore_top, "ignore_bottom": self.camera.ignore_bottom}
+        c = self.cameras
+        return {"view_hfov_deg": self.view_hfov_deg, "fit": self.fit, "hfov_deg": dict(c.hfov_deg),
+                "ignore_top": dict(c.ignore_top), "ignore_bottom": dict(c.ignore_bottom)}
 
 
 def cut_rows(image: np.ndarray, top: float, bottom: float) -> np.ndarray:

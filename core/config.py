@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 from .errors import InputError
+from .frame import CAMERAS
 
 Scoring = Literal["eq4-lost", "eq4", "released"]
 Fit = Literal["squash", "crop", "pad"]
@@ -54,17 +55,20 @@ class BackboneConfig:
 
 @dataclass(frozen=True)
 class CameraConfig:
-    """The camera the frames come from, brought to a common geometry before the network (lostx.core.camera)."""
+    """The vehicle's cameras, by the direction they face (``front``, ``rear``), brought to a common geometry
+    before the network (lostx.core.camera). A frame takes the settings of the camera it declares; a frame
+    that declares none is taken as it is."""
 
-    hfov_deg: float | None = None
-    """This camera's horizontal field of view in degrees (``None``: unknown; no field-of-view matching)."""
+    hfov_deg: dict[str, float] = field(default_factory=dict)
+    """Each camera's horizontal field of view in degrees, e.g. ``{front = 65.1, rear = 90.2}``."""
     view_hfov_deg: float | None = None
     """Building a map: narrow every frame to this common field of view (the map records it, and queries
     from a wider camera are narrowed to it)."""
-    ignore_top: float = 0.0
-    """Fraction of the frame's height dropped at the top."""
-    ignore_bottom: float = 0.0
-    """Fraction of the frame's height dropped at the bottom (the vehicle's own bonnet or boot lid)."""
+    ignore_top: dict[str, float] = field(default_factory=dict)
+    """Fraction of each camera's frame height dropped at the top."""
+    ignore_bottom: dict[str, float] = field(default_factory=dict)
+    """Fraction of each camera's frame height dropped at the bottom (the vehicle's own bonnet or boot lid),
+    e.g. ``{rear = 0.08}``."""
 
 
 @dataclass(frozen=True)
@@ -361,7 +365,12 @@ def check_config(config: Config) -> None:
                 continue  # no such setting (any more): tests/test_config.py keeps LIMITS in step with the sections
             if isinstance(value, tuple) and not value:
                 raise InputError(f"[{section}] {key} must not be empty")
-            for item in value if isinstance(value, tuple) else (value,):
+            if isinstance(value, dict):
+                unknown = sorted(set(value) - set(CAMERAS))
+                if unknown:
+                    raise InputError(f"[{section}] {key}: unknown camera {unknown[0]!r}; cameras: {', '.join(CAMERAS)}")
+            items = value.values() if isinstance(value, dict) else value if isinstance(value, tuple) else (value,)
+            for item in items:
                 if not bounds.allows(item):
                     raise InputError(f"[{section}] {key} must be {bounds.describe()}, got {item!r}")
 

@@ -116,7 +116,7 @@ class Localizer:
                     f"frame {frame.id}: timestamp {frame.timestamp} is earlier than the previous frame's "
                     f"{self._last_timestamp}; frames must arrive in time order (reset the localizer for a new traverse)"
                 )
-        matches = self.matcher.match(frame.image)
+        matches = self.matcher.match(frame.image, frame.camera)
         self.input_check(frame.id, frame.image, matches.same.query_labels)
         if frame.timestamp is not None:
             self._last_timestamp = frame.timestamp

@@ -3,7 +3,7 @@
 A build hands the writer its frames one by one (:class:`MapFrame`) or a chunk at a time
 (:class:`MapChunk`: a run of frames packed as the map stores them, before the normalisation that
 needs all of them). Chunks may live on disk (a build's checkpoint, :mod:`lostx.core.checkpoint`)
-and may come from other processes (:mod:`lostx.core.distributed`). The commit streams through
+and may come from other processes (a cluster: :mod:`lostx.cluster`). The commit streams through
 them in frame order, so it never holds more than a block of frames in memory, and gives the same
 bytes however the frames were cut into chunks: the descriptor statistics are summed over fixed
 blocks of frames, and everything else is per frame.
@@ -55,6 +55,8 @@ class MapFrame:
     """What the frame looked like (lostx.core.inputcheck), for the map's input profile."""
     label_frequencies: np.ndarray | None = None
     """How often the network gave each grouped label in the frame (LoST maps)."""
+    camera: str | None = None
+    """The camera the frame declared (the map records it when all its frames agree)."""
 
 
 @dataclass
@@ -65,6 +67,8 @@ class MapChunk:
     start: int
     names: np.ndarray
     """(n,) frame names (unicode)."""
+    cameras: np.ndarray
+    """(n,) the camera each frame declared (unicode; empty where it declared none)."""
     descriptors: np.ndarray
     """(n, K) float32 raw LoST descriptors, or uint8 thumbnails."""
     positions: np.ndarray
@@ -109,6 +113,7 @@ class MapChunk:
         return cls(
             start=start,
             names=np.array([f.name for f in frames], dtype=str),
+            cameras=np.array([f.camera or "" for f in frames], dtype=str).reshape(n),
             descriptors=descriptors,
             positions=np.array([f.position if f.position is not None else (np.nan, np.nan) for f in frames],
                                dtype=np.float64).reshape(n, 2),
@@ -270,6 +275,10 @@ class MapWriter:
         del descriptors
         self.nbytes = sum(entry["bytes"] for entry in files.values()) + index["bytes"]
         metadata = dict(self.metadata)
+        # The map's camera is what its frames declare, unless the caller says otherwise: a declared query
+        # camera is read against it (which way the query views and drives the route).
+        declared = {str(c) for source in chunks for c in _field(source, "cameras")}
+        metadata.setdefault("camera", (declared.pop() or None) if len(declared) == 1 else None)
         profile = _profile(chunks, self.metadata.get("label_names"))
         if profile is not None:
             metadata["input"] = profile.to_dict()

@@ -15,7 +15,7 @@ from .camera import Geometry
 from .config import Config, LostConfig
 from .describe import LostDescriber, TrailingMeans
 from .errors import MapError
-from .frame import Heading
+from .frame import Camera, Heading
 from .images import check_frame
 from .keypoints import KeypointEvidence
 from .lost import RunningStandardiser
@@ -185,20 +185,20 @@ class PlaceMatcher:
             self.normaliser.reset()
             self.means.reset()
 
-    def match(self, image: np.ndarray) -> FrameMatch:
-        """Match one frame under both heading hypotheses."""
+    def match(self, image: np.ndarray, camera: Camera | None = None) -> FrameMatch:
+        """Match one frame (from the ``camera`` it declares) under both heading hypotheses."""
         image = check_frame(image)
         if isinstance(self.describer, ThumbnailDescriber):
             return self._match_thumbnail(image)
-        return self.match_description(self.describe(image))
+        return self.match_description(self.describe(image, camera=camera))
 
-    def describe(self, image: np.ndarray, appearance: bool = False) -> QueryDescription:
+    def describe(self, image: np.ndarray, appearance: bool = False, camera: Camera | None = None) -> QueryDescription:
         """Run the network on a LoST query frame (the expensive, cacheable half of :meth:`match`);
         ``appearance`` also pools the GeM descriptor of the appearance baseline."""
         describer = self.describer
         assert isinstance(describer, LostDescriber)
         t0 = time.perf_counter()
-        semantic = describer.backbone(self.geometry.prepare(check_frame(image)))
+        semantic = describer.backbone(self.geometry.prepare(check_frame(image), camera))
         t1 = time.perf_counter()
         frame = describer.from_semantic(semantic)
         raw = describer.descriptor(frame, self.means(frame))

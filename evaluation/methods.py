@@ -106,7 +106,9 @@ def _settings_key(config: Config, backbone: Backbone) -> dict:
     info = backbone.info
     # One model file described twice (another feature tensor or input size) gives other features.
     features = [info.feature_tensor, info.feature_dim, list(info.grid)]
-    return {"model": info.model_md5, "backbone": info.name, "features": features, "lost": lost}
+    # The frames are prepared per camera before the network (field of view, rows ignored, fitting).
+    geometry = {"camera": dataclasses.asdict(config.camera), "fit": config.backbone.fit}
+    return {"model": info.model_md5, "backbone": info.name, "features": features, "lost": lost, **geometry}
 
 
 def reference_maps(pair: DatasetPair, config: Config, cache: Path, methods: Sequence[str],
@@ -152,7 +154,7 @@ def query_descriptions(traverse: Traverse, matcher: PlaceMatcher, cache: Path, c
     out = []
     for frame in tqdm(traverse, total=len(traverse), desc="describing queries", unit="frame",
                       disable=not progress, leave=False):
-        out.append(matcher.describe(frame.image, appearance=True))
+        out.append(matcher.describe(frame.image, appearance=True, camera=frame.camera))
     _save_descriptions(path, out)
     return out
 

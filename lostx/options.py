@@ -3,10 +3,13 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import math
+import signal
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -210,41 +213,82 @@ def stream_config_from_args(args: argparse.Namespace, config: Config) -> Config:
 
 def add_viewer_options(parser: argparse.ArgumentParser) -> None:
     """The live view's options: where the Rerun recording goes, and how much of it."""
-    from lostx.viz.target import DEFAULT_CONNECT, DEFAULT_MEMORY_LIMIT
+    from lostx.viz.target import DEFAULT_CONNECT, DEFAULT_MEMORY_LIMIT, DEFAULT_WEB_ADDRESS, GRPC_PORT, WEB_PORT
 
     group = parser.add_argument_group("live view (Rerun; see docs/viewer.md)")
-    group.add_argument("--viewer", action="store_true", help="spawn the Rerun viewer and stream to it")
+    group.add_argument("--viewer", action="store_true",
+                       help="open the native Rerun viewer and stream to it (needs a display)")
     group.add_argument("--connect", nargs="?", const=DEFAULT_CONNECT, metavar="URL",
                        help=f"stream to a running Rerun viewer (default URL {DEFAULT_CONNECT})")
     group.add_argument("--rrd", type=Path, metavar="FILE", help="record to an .rrd file (open it with `rerun FILE`)")
-    group.add_argument("--web", action="store_true", help="serve the web viewer and print its URL")
+    group.add_argument("--web", nargs="?", const=DEFAULT_WEB_ADDRESS, metavar="ADDRESS", type=_web_address,
+                       help=f"serve the web viewer and print its URL; it listens on {DEFAULT_WEB_ADDRESS} unless "
+                            f"given an address (0.0.0.0: every interface, for other machines)")
+    group.add_argument("--web-port", type=int, default=WEB_PORT, metavar="PORT",
+                       help=f"port of the web viewer's page (default {WEB_PORT}; 0: a free one)")
+    group.add_argument("--grpc-port", type=int, default=GRPC_PORT, metavar="PORT",
+                       help=f"port the web viewer reads the recording from (default {GRPC_PORT}; 0: a free one)")
     group.add_argument("--viewer-rate", type=float, default=10.0, metavar="HZ",
-                       help="most frames per second whose images, label maps and lines are logged "
+                       help="most frames per second whose images, label maps, lines and sequence window are logged "
                             "(the rest of the view is logged every frame; 0: every frame; default 10)")
     group.add_argument("--viewer-memory", default=DEFAULT_MEMORY_LIMIT, metavar="LIMIT",
-                       help=f"memory limit of the spawned viewer and the web server's buffer, e.g. 4GiB or 25%% "
+                       help=f"memory limit of the native viewer and the web viewer's recording buffer, e.g. 4GiB or 25%% "
                             f"(oldest data dropped first; default {DEFAULT_MEMORY_LIMIT})")
 
 
+def _web_address(value: str) -> str:
+    import ipaddress
+
+    try:
+        return str(ipaddress.ip_address(value))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{value!r} is not an IP address to listen on (e.g. 127.0.0.1 or 0.0.0.0)") \
+            from None
+
+
+def viewer_notice(message: str) -> None:
+    """One line about the live view on stderr (``lostx demo`` repeats its service's lines that start so)."""
+    print(f"{VIEWER_NOTICE}{message}", file=sys.stderr, flush=True)
+
+
+VIEWER_NOTICE = "lostx: live view: "
+
+
 def viewer_sink_from_args(args: argparse.Namespace, refmap: ReferenceMap) -> RerunSink | None:
-    """A Rerun sink for the destinations the options name, or None where they name none."""
-    from lostx.viz.target import DEFAULT_MEMORY_LIMIT, ViewerOutput
+    """A Rerun sink for the destinations the options name; None where they name none, or where none of
+    them can be had (a native viewer without a display: said in one line, and the command goes on)."""
+    from lostx.viz.target import DEFAULT_MEMORY_LIMIT, DEFAULT_WEB_ADDRESS, GRPC_PORT, WEB_PORT, ViewerOutput
 
     output = ViewerOutput(
         spawn=bool(getattr(args, "viewer", False)),
         connect=getattr(args, "connect", None),
         rrd=getattr(args, "rrd", None),
-        web=bool(getattr(args, "web", False)),
+        web=getattr(args, "web", None) is not None,
+        web_address=getattr(args, "web", None) or DEFAULT_WEB_ADDRESS,
         memory_limit=getattr(args, "viewer_memory", None) or DEFAULT_MEMORY_LIMIT,
+        web_port=getattr(args, "web_port", WEB_PORT),
+        grpc_port=getattr(args, "grpc_port", GRPC_PORT),
     )
     if not output.any:
         return None
+    from lostx.viz.rerun_app import ALTERNATIVES, no_display_reason
+
+    reason = no_display_reason() if output.spawn else None
+    if reason is not None:
+        # Known before anything starts: no window, and no Rerun recording just for it.
+        viewer_notice(f"{reason}; {ALTERNATIVES}")
+        output = dataclasses.replace(output, spawn=False)
+        if not output.any:
+            return None
     from lostx.viz.sink import RerunSink, SinkSettings  # imports Rerun: only when a view is asked for
 
     rate = getattr(args, "viewer_rate", None)
     sink = RerunSink(refmap, output, SinkSettings(heavy_hz=rate if rate and rate > 0 else None))
     for message in sink.opened.messages:
-        print(f"lostx: {message}", file=sys.stderr)
+        viewer_notice(message)
+    if sink.opened.destinations == 0:
+        sink.close()
+        return None
     return sink
 
 
@@ -257,23 +301,53 @@ def viewer_args(args: argparse.Namespace) -> list[str]:
         out += ["--connect", str(args.connect)]
     if getattr(args, "rrd", None):
         out += ["--rrd", str(Path(args.rrd).resolve())]
-    if getattr(args, "web", False):
-        out.append("--web")
+    if getattr(args, "web", None):
+        out += ["--web", str(args.web), "--web-port", str(args.web_port), "--grpc-port", str(args.grpc_port)]
     if out:
         out += ["--viewer-rate", str(args.viewer_rate), "--viewer-memory", str(args.viewer_memory)]
     return out
 
 
-def close_viewer(sink: RerunSink | None) -> None:
-    """Finish a sink from :func:`viewer_sink_from_args`; with ``--web``, keep serving until Ctrl-C first."""
+@contextlib.contextmanager
+def live_view(args: argparse.Namespace, refmap: ReferenceMap) -> Iterator[RerunSink | None]:
+    """The sink of :func:`viewer_sink_from_args` for the length of a command, closed on the way out.
+
+    While it is open, SIGTERM ends the command the way Ctrl-C does, so that an ``.rrd``
+    always gets its footer (a background job, where Ctrl-C does not reach, is stopped
+    with SIGTERM)."""
+    sink = viewer_sink_from_args(args, refmap)
     if sink is None:
+        yield None
         return
-    if sink.opened.web_url is not None:
-        sink.flush()
-        print(f"lostx: serving the web viewer at {sink.opened.web_url}; press Ctrl-C to stop", file=sys.stderr)
+    with terminate_as_interrupt():
+        try:
+            yield sink
+        finally:
+            sink.close()
+
+
+@contextlib.contextmanager
+def terminate_as_interrupt() -> Iterator[None]:
+    """SIGTERM raises KeyboardInterrupt in the main thread for the duration (cleanup runs as for Ctrl-C)."""
+    def interrupt(_signum: int, _frame: object) -> None:
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def serve_until_interrupted(sink: RerunSink | None) -> None:
+    """With ``--web``, keep the web viewer up until Ctrl-C or SIGTERM; the command's results are out already."""
+    if sink is None or sink.opened.web_url is None:
+        return
+    sink.flush()
+    viewer_notice(f"serving the web viewer at {sink.opened.web_url} until Ctrl-C")
+    with terminate_as_interrupt():
         try:
             while True:
                 time.sleep(3600)
         except KeyboardInterrupt:
             pass
-    sink.close()

@@ -172,9 +172,10 @@ def test_inspect_errors(tmp_path, capsys):
 
 def test_presets_resolve_against_each_model():
     assert preset_classes("street", ADE20K_CLASSES) == {
-        "road": ("road",), "building": ("building", "house"), "vegetation": ("tree", "plant", "grass")}
+        "road": ("road", "sidewalk", "earth"), "building": ("building", "house", "wall"),
+        "vegetation": ("tree", "plant", "grass", "field")}
     assert preset_classes("street", CITYSCAPES_CLASSES) == {
-        "road": ("road",), "building": ("building",), "vegetation": ("vegetation",)}
+        "road": ("road", "sidewalk"), "building": ("building", "wall"), "vegetation": ("vegetation", "terrain")}
     assert preset_classes("indoor", ADE20K_CLASSES) == {"wall": ("wall",), "floor": ("floor",),
                                                         "ceiling": ("ceiling",)}
     with pytest.raises(InputError, match="'indoor' does not fit .* floor: floor; ceiling: ceiling"):

@@ -73,7 +73,7 @@ def test_broken_toml_is_an_input_error(tmp_path):
         ({"backbone": {"threads": 0}}, "[backbone] threads must be at least 1, got 0"),
         ({"decision": {"min_confidence": 1.5}}, "[decision] min_confidence must be between 0 and 1, got 1.5"),
         ({"heading": {"vote_reliability": 0.4}}, "[heading] vote_reliability must be between 0.5 and 0.999, got 0.4"),
-        ({"camera": {"hfov_deg": 0}}, "[camera] hfov_deg must be above 0, at most 180, got 0.0"),
+        ({"camera": {"hfov_deg": {"rear": 0}}}, "[camera] hfov_deg must be above 0, at most 180, got 0.0"),
         ({"sequence": {"speeds": []}}, "[sequence] speeds must not be empty"),
         ({"sequence": {"acquire_speeds": [1.0, float("nan")]}}, "[sequence] acquire_speeds must be above 0, got nan"),
         ({"sequence": {"speeds": [1.0, -0.5]}}, "[sequence] speeds must be at least 0, got -0.5"),

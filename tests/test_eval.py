@@ -48,8 +48,8 @@ def test_figures_match_the_single_frame_and_sequence_runs(report):
     assert find(rows, "lostx", "single", 1.0)["recall_at_1"] == pytest.approx(1.0)
     assert find(rows, "lostx", "sequence", 0.0)["recall_at_1"] == pytest.approx(0.7)
     assert find(rows, "lostx", "single", 1.0)["recall_at_100p"] == pytest.approx(1.0)
-    # The verification earns its keep over the descriptor alone (measured: 30 % vs 60 % exact).
-    assert find(rows, "lost", "single", 0.0)["recall_at_1"] == pytest.approx(0.3)
+    # The verification earns its keep over the descriptor alone (measured: 20 % vs 60 % exact).
+    assert find(rows, "lost", "single", 0.0)["recall_at_1"] == pytest.approx(0.2)
     assert find(rows, "thumbnail", "single", 0.0)["recall_at_1"] == pytest.approx(0.2)
 
 

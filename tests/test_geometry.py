@@ -54,16 +54,33 @@ def test_fitting_to_a_square_input(fit, shape):
         np.testing.assert_array_equal(fitted, image[:, 350:1250])
 
 
+def test_each_camera_takes_its_own_settings():
+    cameras = CameraConfig(hfov_deg={"front": 65.0, "rear": 90.0}, ignore_bottom={"rear": 0.1})
+    geometry = Geometry(cameras, 65.0, "squash", None)
+    image = _ramp(900, 1600)
+    assert geometry.prepare(image, "front").shape == image.shape  # already the common field of view
+    rear = geometry.prepare(image, "rear")
+    scale = math.tan(math.radians(32.5)) / math.tan(math.radians(45.0))
+    assert rear.shape[:2] == (round(810 * scale), round(1600 * scale))  # boot lid cut, then narrowed
+    assert geometry.prepare(image, None).shape == image.shape  # a frame that declares no camera: as it is
+
+
+def test_a_camera_setting_for_an_unknown_camera_is_refused():
+    with pytest.raises(InputError, match="unknown camera 'left'"):
+        Config(camera=CameraConfig(hfov_deg={"left": 60.0}))
+
+
 def test_a_map_records_its_geometry_and_queries_follow_it(tmp_path, robotcar, mosaic):
-    config = Config(camera=CameraConfig(hfov_deg=80.0, view_hfov_deg=60.0, ignore_bottom=0.1),
+    config = Config(camera=CameraConfig(hfov_deg={"front": 80.0}, view_hfov_deg=60.0, ignore_bottom={"front": 0.1}),
                     backbone=BackboneConfig(fit="crop"))
-    day = folder_traverse(robotcar / "day").subset(range(3))
+    day = folder_traverse(robotcar / "day", camera="front").subset(range(3))
     build_map(day, tmp_path / "day", config, LostDescriber(mosaic), progress=False)
     refmap = ReferenceMap.open(tmp_path / "day")
-    assert refmap.manifest["geometry"] == {"view_hfov_deg": 60.0, "fit": "crop", "hfov_deg": 80.0,
-                                           "ignore_top": 0.0, "ignore_bottom": 0.1}
+    assert refmap.manifest["geometry"] == {"view_hfov_deg": 60.0, "fit": "crop", "hfov_deg": {"front": 80.0},
+                                           "ignore_top": {}, "ignore_bottom": {"front": 0.1}}
     # A query from the same camera is prepared exactly as the map's frames were: it finds itself at 0.
     query = PlaceMatcher(refmap, Config(camera=config.camera), mosaic)
     assert query.geometry == Geometry(config.camera, 60.0, "crop", 1.0)
-    result = query.match(day.image(1)).same
+    result = query.match(day.image(1), camera="front").same
     assert result.best == 1 and result.score == pytest.approx(0.0, abs=1e-9)
+    assert query.match(day.image(1)).same.score > 0  # undeclared, the frame is not prepared as the map's were

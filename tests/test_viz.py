@@ -8,7 +8,9 @@ from __future__ import annotations
 
 import dataclasses
 import io
+import math
 import os
+import uuid
 from pathlib import Path
 
 import numpy as np
@@ -16,6 +18,7 @@ import pytest
 from PIL import Image
 
 rr = pytest.importorskip("rerun")
+import rerun.blueprint as rrb  # noqa: E402
 from rerun.chunk import RrdReader  # noqa: E402
 
 from lostx.core.config import Config, HeadingConfig  # noqa: E402
@@ -26,7 +29,10 @@ from lostx.core.verify import verify  # noqa: E402
 from lostx.core.refmap import ReferenceMap  # noqa: E402
 from lostx.replay.folder import folder_traverse  # noqa: E402
 from lostx.viz import entities as e  # noqa: E402
-from lostx.viz.geometry import GAP, Panel, colourise, display_size, sequence_band, trajectory  # noqa: E402
+from lostx.viz.blueprint import build_blueprint  # noqa: E402
+from lostx.viz.colours import class_colours  # noqa: E402
+from lostx.viz.geometry import GAP, Panel, display_size, legend_entries  # noqa: E402
+from lostx.viz.sequence_window import CELL_WIDTH, band_rgb, on_map_columns, row_height, sequence_band, trajectory  # noqa: E402
 from lostx.viz.rate import RateGate  # noqa: E402
 from lostx.viz.sink import RerunSink, SinkSettings  # noqa: E402
 from lostx.viz.target import ViewerOutput  # noqa: E402
@@ -118,7 +124,8 @@ def test_every_entity_has_one_time_point_per_frame(front):
         e.LINES: "LineStrips2D:strips", e.CAPTIONS: "Points2D:labels",
         e.CONFIDENCE: "Scalars:scalars", e.MATCH_INDEX: "Scalars:scalars", e.SINGLE_MATCH_INDEX: "Scalars:scalars",
         e.CORRESPONDENCES: "Scalars:scalars", e.STATUS: "TextDocument:text",
-        e.CANDIDATE_SCORES: "BarChart:values", e.CANDIDATE_TABLE: "TextDocument:text",
+        e.CANDIDATE_SCORES: "BarChart:values", e.ANSWER_SCORE: "BarChart:values", e.CANDIDATE_TABLE: "TextDocument:text",
+        e.LEGEND_SWATCHES: "LineStrips2D:strips", e.LEGEND_NAMES: "Points2D:labels",
     }
     for entity, component in per_frame.items():
         assert rec.column(entity, component).frames == frames, entity
@@ -131,14 +138,45 @@ def test_every_entity_has_one_time_point_per_frame(front):
     stamps = [t for f, t in sorted(rec.times[e.CONFIDENCE], key=lambda r: r[0]) if f >= 0]  # -1: static styles
     assert np.allclose(stamps, [(T0 + 0.1 * i) * 1e9 for i in frames], rtol=0, atol=1e3)
     # The sequence filter's score, speed and window: every frame, as the Estimates say.
-    assert rec.column(e.SEQUENCE_SCORE, "Scalars:scalars").frames == frames
-    logged = [v[0] for v in rec.column(e.SEQUENCE_SCORE, "Scalars:scalars").values]
+    assert rec.column(e.SEQUENCE_COST, "Scalars:scalars").frames == frames
+    logged = [v[0] for v in rec.column(e.SEQUENCE_COST, "Scalars:scalars").values]
     assert np.allclose(logged, [est.sequence_score for _, est in seen])
     assert [v[0] for v in rec.column(e.SPEED, "Scalars:scalars").values] == [est.speed for _, est in seen]
-    assert rec.column(e.SEQUENCE_WINDOW, "Image:format").frames == frames
+    assert rec.column(e.SEQUENCE_IMAGE, "Image:format").frames == frames
+    assert rec.column(e.SEQUENCE_WINDOW, "Points2D:positions").frames == frames
     # The map has no positions: no map entities.
     assert not any(entity.startswith("map") for entity in rec.rows)
     assert rec.blueprints, "the default layout travels in the file"
+
+
+def test_each_frame_reaches_the_viewer_whole_and_in_order(day_map, robotcar, tmp_path):
+    # The panels show one frame at a time: every frame's status, table, bars and series are sent
+    # together, before any of the next frame's, whatever Rerun's batching would do by itself
+    # (here told to wait 10 s, so that only the sink's own hand-over per frame splits the chunks).
+    out = tmp_path / "batched.rrd"
+    rec = rr.RecordingStream("lostx", recording_id=str(uuid.uuid4()),
+                             batcher_config=rr.ChunkBatcherConfig(flush_tick=10.0, flush_num_bytes=1 << 30,
+                                                                  flush_num_rows=1 << 20))
+    rec.set_sinks(rr.FileSink(str(out)))
+    localizer = Localizer(day_map, Config())
+    # Images only for the first frame: what is in step here is the light part's own doing.
+    sink = RerunSink(day_map, None, dataclasses.replace(SYNC, heavy_hz=1e-6, frame_by_frame=True), recording=rec)
+    frames = list(folder_traverse(robotcar / "night"))[:4]
+    for frame in frames:
+        sink(frame, localizer.step(frame))
+    sink.close()
+    light = {e.STATUS, e.CANDIDATE_TABLE, e.CANDIDATE_SCORES, e.CONFIDENCE, e.MATCH_INDEX, e.SEQUENCE_COST, e.SPEED}
+    order = []
+    for chunk in RrdReader(out).stream():
+        entity = chunk.entity_path.lstrip("/")
+        batch = chunk.to_record_batch()
+        if entity in light and "frame" in batch.schema.names:
+            in_chunk = set(batch.column("frame").to_pylist())
+            assert len(in_chunk) == 1, (entity, in_chunk)
+            order.append((in_chunk.pop(), entity))
+    assert [f for f, _ in order] == sorted(f for f, _ in order)
+    for frame in frames:
+        assert {entity for f, entity in order if f == frame.id} == light
 
 
 def test_logged_values_equal_the_estimates(front):
@@ -151,14 +189,29 @@ def test_logged_values_equal_the_estimates(front):
                           [est.confidence for est in estimates])
     assert [v[0] for v in rec.column(e.CORRESPONDENCES, "Scalars:scalars").values] == \
         [matched(est).correspondences for est in estimates]
+    # The bars stand at their candidates' reference indices; the answer's bar is an entity of its own.
     bars = rec.column(e.CANDIDATE_SCORES, "BarChart:values").values
-    for bar, est in zip(bars, estimates):
-        assert np.allclose(bar[0]["buffer"], [c.score for c in est.candidates])
+    where = rec.column(e.CANDIDATE_SCORES, "BarChart:abscissa").values
+    answer = rec.column(e.ANSWER_SCORE, "BarChart:values").values
+    answer_at = rec.column(e.ANSWER_SCORE, "BarChart:abscissa").values
+    for bar, x, one, one_x, est in zip(bars, where, answer, answer_at, estimates):
+        others = [c for c in est.candidates if c.index != est.match_index]
+        assert np.allclose(bar[0]["buffer"], [c.score for c in others])
+        assert np.array_equal(x[0]["buffer"], [c.index for c in others])
+        assert np.array_equal(one_x[0]["buffer"], [est.match_index]) and np.allclose(one[0]["buffer"], [matched(est).score])
     tables = rec.column(e.CANDIDATE_TABLE, "TextDocument:text").values
     for table, est in zip(tables, estimates):
-        assert table[0].count("\n") == 1 + len(est.candidates)
-        assert f"| 1 | **{est.candidates[0].index}**" in table[0]
-    assert "confidence" in rec.column(e.STATUS, "TextDocument:text").values[3][0]
+        rows = [line for line in table[0].splitlines() if line.startswith("| ") and line[2].isdigit()]
+        assert len(rows) == len(est.candidates)
+        first = est.candidates[0]
+        mark = f"**{first.index} ◀**" if first.index == est.match_index else str(first.index)
+        assert rows[0].startswith(f"| 1 | {mark} |") and rows[0].endswith(f"| {first.correspondences} |")
+    # The status names the answer's own score once, as what it is (here the sequence cost), and the heading.
+    status = rec.column(e.STATUS, "TextDocument:text").values[3][0]
+    # The calibrated confidence to three decimals, rounded down: 0.999 (localized) shows only once reached.
+    assert f"confidence **{math.floor(estimates[3].confidence * 1000 + 1e-9) / 1000:.3f}**" in status
+    assert status.count("sequence cost") == 1 and "score **" not in status
+    assert f"heading **same ({100 * estimates[3].heading_confidence:.0f} % sure)**" in status
 
 
 def test_lines_are_the_estimates_correspondences_coloured_by_class(front, day_map):
@@ -170,6 +223,10 @@ def test_lines_are_the_estimates_correspondences_coloured_by_class(front, day_ma
         corr = est.evidence.correspondences[est.match_index]
         assert len(lines) == matched(est).correspondences == len(corr.label) > 20
         assert ids == [int(v) for v in corr.label]
+        colours = rec.column(e.LINES, "LineStrips2D:colors").values[frame.id]
+        table = class_colours(day_map.label_names)
+        # Translucent, in their class's colour (Rerun packs RGBA into one 0xRRGGBBAA integer).
+        assert colours == [(r << 24) | (g << 16) | (b << 8) | 190 for r, g, b in (table[int(v)] for v in corr.label)]
         lines = np.asarray(lines)
         # Query keypoints on the left image (512 px wide), reference keypoints on the right one, at cell centres.
         assert np.allclose(lines[:, 0, 0], (corr.query_xy[:, 0] + 0.5) * 512 / w)
@@ -219,7 +276,8 @@ def test_an_opposite_camera_is_shown_mirrored_and_says_so(day_map, robotcar, tmp
         corr = est.evidence.correspondences[est.match_index]
         assert np.allclose(np.asarray(lines)[:, 0, 0], (w - 1 - corr.query_xy[:, 0] + 0.5) * 512 / w)
         assert np.array_equal(np.asarray(labels[0], np.uint8).reshape(h, w), est.evidence.query_labels[:, ::-1])
-        assert "MIRRORED" in captions[0] and "rear camera" in captions[0]
+        assert "MIRRORED: rear camera, front map · heading opposite" in captions[0]
+        assert captions[1].endswith(f"\n{len(corr.label)} correspondences")
         image = np.asarray(Image.open(io.BytesIO(bytes(blob[0]))), np.float64)
         assert np.abs(image - frame.image[::2, ::-2]).mean() < 12
         assert np.abs(image - frame.image[::2, ::2]).mean() > 20
@@ -269,12 +327,22 @@ def test_the_sequence_window_is_drawn_when_the_estimate_has_one(day_map, robotca
         windows.append(est)
     sink.close()
     rec = Recording(out)
-    assert [v[0] for v in rec.column(e.SEQUENCE_SCORE, "Scalars:scalars").values] == [0.2, 1.2]
+    assert [v[0] for v in rec.column(e.SEQUENCE_COST, "Scalars:scalars").values] == [0.2, 1.2]
     assert [v[0] for v in rec.column(e.SPEED, "Scalars:scalars").values] == [1.0, 1.0]
-    image = rec.column(e.SEQUENCE_WINDOW, "Image:format").values[0][0]
-    assert (image["width"], image["height"]) == (10, 3)  # references 0..9 (the map), 3 frames
+    # The band is centred on the answer (2); its columns on the map, references 0..9, are the image.
+    image = rec.column(e.SEQUENCE_IMAGE, "Image:format").values[0][0]
+    assert (image["width"], image["height"]) == (10, 3)
+    # One dot per filled cell: 8 candidates in the window (the inf is not one), named on hover.
+    dots = np.asarray(rec.column(e.SEQUENCE_WINDOW, "Points2D:positions").values[0])
+    names = rec.column(e.SEQUENCE_WINDOW, "Points2D:labels").values[0]
+    assert len(dots) == len(names) == 8
+    first = 2 - 25
+    assert "reference 0 · 2 frames ago · cost 0.2" in names and "reference 2 · this frame · cost 0.3" in names
+    assert [0.5 + (0 - first)] == [dots[names.index("reference 0 · 2 frames ago · cost 0.2")][0] / CELL_WIDTH]
     path = np.asarray(rec.column(e.SEQUENCE_TRAJECTORY, "LineStrips2D:strips").values[0][0])
-    assert np.allclose(path, [[0.5, 0.5], [1.5, 1.5], [2.5, 2.5]])
+    assert np.allclose(path, [[(r - first + 0.5) * CELL_WIDTH, (i + 0.5) * row_height(3)] for i, r in enumerate((0, 1, 2))])
+    assert rec.column(e.SEQUENCE_INDICES, "Points2D:labels").values[0] == ["ref 0", "ref 2", "ref 9"]
+    assert rec.column(e.SEQUENCE_KEY_NAMES, "Points2D:labels").values[0] == ["best 0.1", "worst 0.6"]
     # Lines to the filter's answer where this frame verified it; none (not the last frame's) where it did not.
     lines = rec.column(e.LINES, "LineStrips2D:strips").values
     assert len(lines[0]) == len(windows[0].evidence.correspondences[2].label) > 0
@@ -327,6 +395,32 @@ def test_reference_images_are_read_once_across_runs(day_map, robotcar, tmp_path)
                for m, width, quality in ((day_map, 640, 80), (ReferenceMap.open(rebuilt), 640, 80),
                                          (day_map, 320, 80), (day_map, 640, 70))}
     assert len(folders) == 4
+
+
+def view_names(container) -> list[str]:
+    names = []
+    for item in container.contents:
+        names += view_names(item) if isinstance(item, rrb.Container) else [str(item.name)]
+    return names
+
+
+SEQUENCE_PANELS = {"Sequence cost", "Speed ref/frame", "Sequence window"}
+
+
+def test_without_the_sequence_filter_its_empty_panels_leave_the_layout(day_map, robotcar, tmp_path):
+    assert SEQUENCE_PANELS <= set(view_names(build_blueprint(10, (512, 320)).root_container))
+    assert "Map" in view_names(build_blueprint(2, None, route=np.array([[0.0, 0.0], [10.0, 5.0]])).root_container)
+    config = Config()
+    localizer = Localizer(day_map, dataclasses.replace(config, sequence=dataclasses.replace(config.sequence, enabled=False)))
+    sink = RerunSink(day_map, ViewerOutput(rrd=tmp_path / "single.rrd"), SYNC)
+    assert SEQUENCE_PANELS <= set(view_names(sink.blueprint.root_container))
+    frame = folder_traverse(robotcar / "night").frame(0)
+    sink(frame, localizer.step(frame))
+    sink.close()
+    shown = set(view_names(sink.blueprint.root_container))
+    assert not SEQUENCE_PANELS & shown and {"Confidence", "Route position", "Status", "Top-10"} <= shown
+    status = Recording(tmp_path / "single.rrd").column(e.STATUS, "TextDocument:text").values[0][0]
+    assert "(single-frame verification, lower is better) · sequence filter off" in status
 
 
 # -- pacing and the background thread ---------------------------------------------------------------
@@ -389,7 +483,7 @@ def test_a_failing_view_does_not_stop_the_localizer(day_map, robotcar, tmp_path)
     localizer = Localizer(day_map, Config())
     frame = folder_traverse(robotcar / "night").frame(0)
     est = localizer.step(frame)
-    broken = dataclasses.replace(est, candidates=[dataclasses.replace(est.candidates[0], index=10_000)])
+    broken = dataclasses.replace(est, match_index=10_000)  # no such reference
     sink = RerunSink(day_map, ViewerOutput(rrd=tmp_path / "broken.rrd"), dataclasses.replace(SYNC, strict=False))
     sink(frame, broken)
     sink(frame, est)
@@ -445,7 +539,7 @@ def test_viewer_options_make_a_sink_only_when_asked(day_map, tmp_path, monkeypat
 
 
 def test_the_viewer_is_found_without_an_activated_environment(monkeypatch):
-    from lostx.viz.output import viewer_executable
+    from lostx.viz.rerun_app import viewer_executable
 
     monkeypatch.setenv("PATH", "")
     found = viewer_executable()
@@ -471,17 +565,37 @@ def test_mirrored_panel_flips_cell_centres():
     assert np.allclose(Panel(100, 512, 320).cell_centres(xy, (32, 32))[:, 0], plain[:, 0] + 100)
 
 
-def test_sequence_band_keeps_the_lower_cost_and_clips_to_the_band():
+def test_sequence_band_keeps_the_lower_cost_and_centres_the_answer():
     window = np.array([[0.5, 0.2, np.inf], [0.9, 0.1, 0.4]])
     cands = np.array([[7, 7, 8], [30, 5, 6]])
     band = sequence_band(window, cands, n_refs=40, centre=6, half_width=2)
-    assert band.first == 4 and band.width == 5
+    assert band.first == 4 and band.width == 5 and band.rows == 2
     expected = np.full((2, 5), np.nan)
     expected[0, 3] = 0.2          # reference 7 listed twice: the lower cost
     expected[1, 1], expected[1, 2] = 0.1, 0.4
     assert np.array_equal(np.isnan(band.costs), np.isnan(expected))
     assert np.allclose(band.costs[~np.isnan(band.costs)], expected[~np.isnan(expected)])
-    rgb = colourise(band.costs, np.array([[0, 0, 0], [255, 255, 255]], np.uint8))
+    lut = np.array([[0, 0, 0], [255, 255, 255]], np.uint8)
+    rgb = band_rgb(band, lut, (0, 5))
     assert tuple(rgb[1, 1]) == (255, 255, 255) and tuple(rgb[0, 3]) == (255, 255, 255)  # 0.1 and 0.2 round up
-    assert tuple(rgb[0, 0]) == (25, 25, 25)
-    assert np.allclose(trajectory(3, 10, 2.0, 4), [[2.5, 0.5], [4.5, 1.5], [6.5, 2.5]])
+    assert tuple(rgb[1, 2]) == (0, 0, 0) and tuple(rgb[0, 0]) == (128, 128, 128)        # 0.4 the worst; empty grey
+    # Near the start of the map the band still centres the answer; only its columns on the map are drawn.
+    edge = sequence_band(window, cands, n_refs=40, centre=1, half_width=4)
+    assert edge.first == -3 and on_map_columns(edge, 40) == (3, 9)
+    assert on_map_columns(sequence_band(window, cands, n_refs=8, centre=6, half_width=4), 8) == (0, 6)
+
+
+def test_a_window_of_one_frame_stays_one_row():
+    # The filter's first frame: a (1, B) band must be drawn as one row, not as a column of pixels.
+    band = sequence_band(np.array([[0.3, 0.1]]), np.array([[4, 5]]), n_refs=20, centre=5, half_width=3)
+    rgb = band_rgb(band, np.array([[0, 0, 0], [255, 255, 255]], np.uint8), on_map_columns(band, 20))
+    assert rgb.shape == (1, 7, 3)
+    assert np.allclose(trajectory(1, 5, 1.0, band.first), [[3.5 * CELL_WIDTH, 0.5 * row_height(1)]])
+    assert np.allclose(trajectory(3, 10, 2.0, 4), [[2.5 * CELL_WIDTH, 0.5 * row_height(3)], [4.5 * CELL_WIDTH, 1.5 * row_height(3)],
+                                                   [6.5 * CELL_WIDTH, 2.5 * row_height(3)]])
+
+
+def test_legend_lists_the_frequent_classes_first():
+    assert legend_entries(np.array([2, 0, 2, 1, 0, 2, 5])) == [(2, 3), (0, 2), (1, 1), (5, 1)]
+    assert legend_entries(np.array([3, 3, 1, 2]), limit=2) == [(3, 2), (1, 1)]
+    assert legend_entries(np.zeros(0, np.uint16)) == []

@@ -24,11 +24,14 @@ REFERENCE_LABELS = "match/reference/labels"
 REFERENCE_OUTLINE = "match/reference/outline"
 LINES = "match/lines"
 CAPTIONS = "match/captions"
-"""What each image is (a query shown mirrored says so), above the images."""
+"""What each image is (a query shown mirrored says so), under the images."""
+LEGEND_SWATCHES = "match/legend/swatches"
+LEGEND_NAMES = "match/legend/names"
+"""The classes of this frame's lines: a swatch of each colour, with the class name and count."""
 
 # Time series.
 CONFIDENCE = "plots/confidence"
-SEQUENCE_SCORE = "plots/sequence_score"
+SEQUENCE_COST = "plots/sequence_cost"
 SPEED = "plots/speed"
 MATCH_INDEX = "route/match_index"
 SINGLE_MATCH_INDEX = "route/single_match_index"
@@ -36,13 +39,23 @@ CORRESPONDENCES = "plots/correspondences"
 
 # Per-frame summaries.
 STATUS = "status"
-CANDIDATE_SCORES = "candidates/scores"
 CANDIDATE_TABLE = "candidates/table"
+CANDIDATE_BARS = "candidates/bars"
+CANDIDATE_SCORES = "candidates/bars/candidates"
+ANSWER_SCORE = "candidates/bars/answer"
+"""The top-10's verification scores as bars at their reference indices; the answer's bar in its own colour."""
 
 # The sequence filter's window: costs over reference index and time, and the chosen trajectory.
 SEQUENCE = "sequence"
+SEQUENCE_IMAGE = "sequence/image"
+"""The window's cells, one pixel each, stretched over the band."""
 SEQUENCE_WINDOW = "sequence/window"
+"""One dot per filled cell of the window (hover: reference, age, cost)."""
 SEQUENCE_TRAJECTORY = "sequence/trajectory"
+SEQUENCE_INDICES = "sequence/indices"
+SEQUENCE_KEY = "sequence/key/dots"
+SEQUENCE_KEY_NAMES = "sequence/key/names"
+"""Reference indices under the window, and the two-dot key of its colour scale with the two costs."""
 
 # The map, where the reference map has positions.
 MAP = "map"
@@ -52,5 +65,6 @@ MAP_ESTIMATE = "map/estimate"
 MAP_TRUTH = "map/truth"
 MAP_ERROR = "map/error"
 
-HEAVY = (QUERY_IMAGE, QUERY_LABELS, QUERY_OUTLINE, REFERENCE_IMAGE, REFERENCE_LABELS, REFERENCE_OUTLINE, LINES, CAPTIONS)
+HEAVY = (QUERY_IMAGE, QUERY_LABELS, QUERY_OUTLINE, REFERENCE_IMAGE, REFERENCE_LABELS, REFERENCE_OUTLINE, LINES, CAPTIONS,
+         LEGEND_SWATCHES, LEGEND_NAMES)
 """Entities whose logging rate is limited (images, label maps, correspondence lines)."""

@@ -1,8 +1,10 @@
 """Where things are drawn: pure numpy, no Rerun.
 
 The match space holds the query image on the left and the reference image on
-its right; keypoints live on the feature grid (e.g. 32 x 32 cells) and are
-drawn at the centre of their cell in each image's display pixels.
+its right, their captions and the legend of the line colours below them;
+keypoints live on the feature grid (e.g. 32 x 32 cells) and are drawn at the
+centre of their cell in each image's display pixels. The map view's coordinates
+are here too; the sequence window's are in :mod:`.sequence_window`.
 """
 
 from __future__ import annotations
@@ -67,20 +69,62 @@ def side_by_side(query: tuple[int, int], reference: tuple[int, int], mirrored: b
     return q, r
 
 
+# Captions and legend names are drawn in UI points, the images in match-space pixels. The gaps
+# below are in UI points and are turned into match-space pixels for the narrowest view the
+# layout is made for (about 900 points for both images, a 1280 x 720 window): at any larger
+# size they only grow apart.
+DESIGN_WIDTH = 900.0
+"""UI points across both images in a 1280-point-wide window."""
+CAPTION_GAP = 6.0
+"""Captions hang from this far under the images: never over a line or a picture."""
+LEGEND_GAP = 62.0
+"""The class legend's swatches sit this far under the images (room for two lines of caption)."""
+LEGEND_ROOM = 34.0
+"""Room under the swatches for their names."""
+LEGEND_SWATCH = 28.0
+LEGEND_MAX = 8
+"""Most classes in the legend (the most frequent in the frame's correspondences)."""
+
+
+def pixels_per_point(query: Panel, reference: Panel) -> float:
+    """Match-space pixels per UI point when both images fill the design width (never below 1)."""
+    return max(1.0, (reference.x0 + reference.width) / DESIGN_WIDTH)
+
+
 def match_bounds(query: tuple[int, int], reference: tuple[int, int], margin: float = 24.0) -> tuple[tuple[float, float], tuple[float, float]]:
-    """(x range, y range) of the match space that shows both images and their captions above them."""
+    """(x range, y range) of the match space: both images, their captions and the class legend under them."""
     q, r = side_by_side(query, reference, False)
-    return (-margin, r.x0 + r.width + margin), (-CAPTION_HEIGHT - margin, max(q.height, r.height) + margin)
-
-
-CAPTION_HEIGHT = 14.0
-"""Captions sit this far above each image (match-space pixels)."""
+    bottom = max(q.height, r.height) + (LEGEND_GAP + LEGEND_ROOM) * pixels_per_point(q, r)
+    return (-margin, r.x0 + r.width + margin), (-margin, bottom + margin)
 
 
 def caption_anchors(query: Panel, reference: Panel) -> np.ndarray:
-    """(2, 2) where the query's and the reference's captions are placed: centred above each image."""
-    return np.array([[query.x0 + query.width / 2, -CAPTION_HEIGHT / 2],
-                     [reference.x0 + reference.width / 2, -CAPTION_HEIGHT / 2]], dtype=np.float32)
+    """(2, 2) where the query's and the reference's captions hang from: centred under each image."""
+    y = max(query.height, reference.height) + CAPTION_GAP * pixels_per_point(query, reference)
+    return np.array([[query.x0 + query.width / 2, y], [reference.x0 + reference.width / 2, y]], dtype=np.float32)
+
+
+def legend_entries(labels: np.ndarray, limit: int = LEGEND_MAX) -> list[tuple[int, int]]:
+    """(class id, count) of the classes among ``labels``, most frequent first (ties: lower id first)."""
+    ids, counts = np.unique(np.asarray(labels, dtype=np.int64), return_counts=True)
+    order = np.lexsort((ids, -counts))[:limit]
+    return [(int(ids[i]), int(counts[i])) for i in order]
+
+
+def legend_layout(n: int, query: Panel, reference: Panel) -> tuple[np.ndarray, np.ndarray]:
+    """Swatches (n, 2, 2) and name anchors (n, 2) of an n-entry legend in a row under the captions.
+
+    The entries are spaced evenly over both images' width, as if there were at least six,
+    so that a short legend keeps its names apart at any zoom."""
+    if n == 0:
+        return np.zeros((0, 2, 2), np.float32), np.zeros((0, 2), np.float32)
+    scale = pixels_per_point(query, reference)
+    step = (reference.x0 + reference.width) / max(n, 6)
+    centres = (np.arange(n) + 0.5) * step
+    y = np.full(n, max(query.height, reference.height) + LEGEND_GAP * scale)
+    half = LEGEND_SWATCH / 2 * scale
+    swatches = np.stack([np.stack([centres - half, y], 1), np.stack([centres + half, y], 1)], 1)
+    return swatches.astype(np.float32), np.stack([centres, y + 2.0 * scale], 1).astype(np.float32)
 
 
 def correspondence_strips(corr: Correspondences, grid: tuple[int, int], query: Panel, reference: Panel) -> tuple[np.ndarray, np.ndarray]:
@@ -96,62 +140,15 @@ def correspondence_strips(corr: Correspondences, grid: tuple[int, int], query: P
     return np.stack([a, b], axis=1).astype(np.float32), np.asarray(corr.label, dtype=np.uint16)
 
 
-@dataclass
-class SequenceBand:
-    """The sequence window as an image: rows are the window's frames (oldest at the top),
-    columns the reference frames ``first .. first + width - 1``, pixels the candidate cost
-    (NaN where the frame had no candidate at that reference)."""
-
-    costs: np.ndarray
-    first: int
-
-    @property
-    def width(self) -> int:
-        return int(self.costs.shape[1])
-
-
-def sequence_band(window: np.ndarray, candidates: np.ndarray, n_refs: int, centre: int, half_width: int) -> SequenceBand:
-    """Scatter the (L, k) window of candidate costs into an (L, B) band of reference indices around ``centre``.
-
-    Candidates outside the band (other places on the route) are left out; the band
-    is at most 2 * half_width + 1 wide and is clipped to the map.
-    """
-    window = np.asarray(window, dtype=np.float64)
-    candidates = np.asarray(candidates, dtype=np.int64)
-    first = max(0, centre - half_width)
-    last = min(n_refs - 1, centre + half_width)
-    band = np.full((window.shape[0], last - first + 1), np.nan)
-    row, col = np.nonzero((candidates >= first) & (candidates <= last) & np.isfinite(window))
-    # Where a frame lists one reference twice, keep its lower cost.
-    order = np.argsort(-window[row, col], kind="stable")
-    row, col = row[order], col[order]
-    band[row, candidates[row, col] - first] = window[row, col]
-    return SequenceBand(band, first)
-
-
-def colourise(costs: np.ndarray, lut: np.ndarray, empty: tuple[int, int, int] = (25, 25, 25)) -> np.ndarray:
-    """(H, W) costs -> (H, W, 3) uint8: the lowest cost takes the last colour of ``lut`` (brightest), NaN ``empty``."""
-    out = np.empty(costs.shape + (3,), np.uint8)
-    out[:] = empty
-    finite = np.isfinite(costs)
-    if finite.any():
-        lo, hi = float(costs[finite].min()), float(costs[finite].max())
-        t = np.ones(int(finite.sum())) if hi <= lo else (hi - costs[finite]) / (hi - lo)
-        out[finite] = lut[np.clip(np.rint(t * (len(lut) - 1)), 0, len(lut) - 1).astype(np.int64)]
-    return out
-
-
-def trajectory(n_rows: int, match_index: int, speed: float, first: int) -> np.ndarray:
-    """(n_rows, 2) band pixels of the straight trajectory ending at ``match_index`` in the newest row.
-
-    Row r of the window (0 oldest) sits ``speed * (n_rows - 1 - r)`` reference frames before the match.
-    """
-    rows = np.arange(n_rows, dtype=np.float64)
-    refs = match_index - speed * (n_rows - 1 - rows)
-    return np.stack([refs - first + 0.5, rows + 0.5], axis=1)
-
-
 def map_xy(positions: np.ndarray) -> np.ndarray:
     """(N, 2) east/north metres -> 2D view coordinates (the view's y axis points down, so north is flipped up)."""
     positions = np.asarray(positions, dtype=np.float64)
     return np.stack([positions[:, 0], -positions[:, 1]], axis=1)
+
+
+def map_bounds(positions: np.ndarray, margin: float = 0.08) -> tuple[tuple[float, float], tuple[float, float]]:
+    """(x range, y range) of the map view that frames the whole route, with ``margin`` of its size around it."""
+    xy = map_xy(positions)
+    lo, hi = xy.min(axis=0), xy.max(axis=0)
+    pad = margin * max(float((hi - lo).max()), 1.0)
+    return (float(lo[0] - pad), float(hi[0] + pad)), (float(lo[1] - pad), float(hi[1] + pad))

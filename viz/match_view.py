@@ -1,11 +1,14 @@
 """The heavy part of the view: query and matched reference side by side, label maps, correspondence lines.
 
 Both images live in one 2D space (the ``match`` entity): the query at x = 0,
-the reference to its right. Their label maps are logged at feature-grid
+the reference to its right, their captions and the legend of the line colours
+below them, where no line reaches. Their label maps are logged at feature-grid
 resolution (32 x 32 cells, a kilobyte) and stretched over the images by a
-scale transform, rather than upsampled to image size. The lines join each
-correspondence's keypoints at their cell centres and take the colour of their
-semantic class from the annotation context on ``match``.
+scale transform, rather than upsampled to image size; the default layout hides
+them (the blueprint panel shows them again). The lines join each
+correspondence's keypoints at their cell centres, thin and translucent, in the
+colour of their semantic class; hovering one names the class (annotation context
+on ``match``).
 """
 
 from __future__ import annotations
@@ -21,10 +24,12 @@ from lostx.core.refmap import ReferenceMap
 
 from . import colours
 from . import entities as e
-from .geometry import Panel, caption_anchors, correspondence_strips, side_by_side
+from .geometry import Panel, caption_anchors, correspondence_strips, legend_entries, legend_layout, side_by_side
 from .images import Jpeg, ReferenceImages, encode
-from .summary import matched_candidate
+from .summary import captions
 
+LINE_RADIUS = 1.0
+"""Correspondence lines are this many UI points wide on each side: thin enough to see the images through."""
 
 class MatchLogger:
     """Logs one frame's match space. Keeps the encoded-reference cache and the current panel layout."""
@@ -61,14 +66,9 @@ class MatchLogger:
             if self.map.kind == "lost":
                 rec.log(e.REFERENCE_LABELS, rr.SegmentationImage(
                     np.ascontiguousarray(self.map.labels(est.match_index)), opacity=self.label_opacity))
-        query_colour = colours.MIRRORED_OUTLINE if est.opposite else colours.QUERY_OUTLINE
+        query_colour = colours.MIRRORED if est.opposite else colours.OUTLINE
         rec.log(e.QUERY_OUTLINE, _outline(q_panel, query_colour))
-        rec.log(e.REFERENCE_OUTLINE, _outline(r_panel, colours.REFERENCE_OUTLINE))
-        # Captions live in the untransformed match space: the viewer places labels of
-        # transformed entities at their untransformed positions.
-        rec.log(e.CAPTIONS, rr.Points2D(caption_anchors(q_panel, r_panel), labels=captions(frame, est, self.map.camera),
-                                        colors=[query_colour, colours.REFERENCE_OUTLINE],
-                                        radii=rr.Radius.ui_points(0.1), show_labels=True))
+        rec.log(e.REFERENCE_OUTLINE, _outline(r_panel, colours.OUTLINE))
 
         ev = est.evidence
         if ev is not None and ev.query_labels is not None:
@@ -78,11 +78,31 @@ class MatchLogger:
         corr = ev.correspondences.get(est.match_index) if ev is not None else None
         if corr is not None and grid is not None:
             strips, class_ids = correspondence_strips(corr, grid, q_panel, r_panel)
-            rec.log(e.LINES, rr.LineStrips2D(strips, class_ids=class_ids, radii=rr.Radius.ui_points(2.0)))
         else:
             # No verified correspondences to the answer (e.g. the sequence filter chose a
             # reference outside this frame's top-k): no lines, rather than the last frame's.
-            rec.log(e.LINES, rr.LineStrips2D(np.zeros((0, 2, 2), np.float32)))
+            strips, class_ids = np.zeros((0, 2, 2), np.float32), np.zeros(0, np.uint16)
+        rec.log(e.LINES, rr.LineStrips2D(strips, class_ids=class_ids, radii=rr.Radius.ui_points(LINE_RADIUS),
+                                         colors=colours.line_colours(class_ids.tolist(), self.map.label_names)))
+        self._log_legend(legend_entries(class_ids), panels)
+        # Captions live in the untransformed match space: the viewer places labels of
+        # transformed entities at their untransformed positions.
+        rec.log(e.CAPTIONS, rr.Points2D(caption_anchors(q_panel, r_panel),
+                                        labels=captions(frame, est, self.map.camera, len(strips)),
+                                        colors=[colours.MIRRORED if est.opposite else colours.CAPTION, colours.CAPTION],
+                                        radii=rr.Radius.ui_points(0.1), show_labels=True))
+
+    def _log_legend(self, entries: list[tuple[int, int]], panels: tuple[Panel, Panel]) -> None:
+        """Swatches of the line colours in this frame, each with its class name and count."""
+        swatches, anchors = legend_layout(len(entries), *panels)
+        names = self.map.label_names
+        table = colours.class_colours(names)
+        self.rec.log(e.LEGEND_SWATCHES, rr.LineStrips2D(
+            swatches, radii=rr.Radius.ui_points(4.0),
+            colors=[table[i] if i < len(table) else colours.UNKNOWN_CLASS for i, _ in entries]))
+        self.rec.log(e.LEGEND_NAMES, rr.Points2D(anchors, radii=rr.Radius.ui_points(0.1), colors=[colours.CAPTION],
+                                                 labels=[f"{names[i] if i < len(names) else i} {n}" for i, n in entries],
+                                                 show_labels=True))
 
     def _place(self, panels: tuple[Panel, Panel]) -> None:
         """Put both images in the match space and stretch the label maps over them."""
@@ -105,12 +125,3 @@ def _outline(panel: Panel, colour: colours.Rgb) -> rr.Boxes2D:
     mins, size = panel.outline()
     return rr.Boxes2D(mins=[mins], sizes=[size], colors=[colour], radii=rr.Radius.ui_points(1.0))
 
-
-def captions(frame: Frame, est: Estimate, map_camera: str) -> list[str]:
-    """The query's and the reference's caption; a mirrored query says so and why."""
-    query = f"query {frame.id}" + (f" · {frame.name}" if frame.name else "")
-    if est.opposite:
-        query += f" · MIRRORED: {frame.camera} camera, map {map_camera}"
-    matched = matched_candidate(est)
-    n_corr = matched.correspondences if matched is not None else 0
-    return [query, f"reference {est.match_index} · {est.match_name} · {n_corr} correspondences"]

@@ -1,24 +1,26 @@
 """Where the recording goes: a spawned viewer, a running one, an .rrd file, a served web viewer.
 
 Any combination may be asked for at once; they are attached to one recording
-stream as Rerun sinks, so each frame is encoded once.
+stream as Rerun sinks, so each frame is encoded once. A viewer that cannot start
+(no display, a failed window) is reported in one line and left out: the other
+destinations, and the command's own results, go on without it.
 """
 
 from __future__ import annotations
 
-import shutil
-import socket
-import sys
+import dataclasses
+import ipaddress
 from dataclasses import dataclass, field
 from pathlib import Path
-from urllib.parse import quote
 
 import rerun as rr
 import rerun.blueprint as rrb
 
 from lostx.core.errors import InputError
 
+from .rerun_app import ALTERNATIVES, ViewerUnavailable, free_port, port_is_free, spawn_viewer
 from .target import ViewerOutput
+from .web import WebViewer
 
 
 @dataclass
@@ -27,12 +29,27 @@ class OpenedOutput:
 
     messages: list[str] = field(default_factory=list)
     web_url: str | None = None
+    destinations: int = 0
+    """Rerun sinks attached to the recording (0: everything asked for was unavailable)."""
+    web: WebViewer | None = None
+
+    def close(self) -> None:
+        """Stop serving the web viewer's page (the recording's sinks are closed with the recording)."""
+        if self.web is not None:
+            self.web.close()
+            self.web = None
+
+
+def is_loopback(address: str) -> bool:
+    return ipaddress.ip_address(address).is_loopback
 
 
 def open_output(recording: rr.RecordingStream, output: ViewerOutput, blueprint: rrb.Blueprint) -> OpenedOutput:
     """Attach ``output``'s destinations to ``recording``, each with ``blueprint`` as the default layout."""
     opened = OpenedOutput()
     sinks: list[rr.GrpcSink | rr.GrpcServerSink | rr.FileSink] = []
+    if output.web:
+        output = _with_ports(output)
     if output.rrd is not None:
         Path(output.rrd).parent.mkdir(parents=True, exist_ok=True)
         sinks.append(rr.FileSink(str(output.rrd)))
@@ -41,57 +58,59 @@ def open_output(recording: rr.RecordingStream, output: ViewerOutput, blueprint: 
         sinks.append(rr.GrpcSink(output.connect))
         opened.messages.append(f"streaming to the viewer at {output.connect}")
     if output.spawn:
-        # Start the viewer with its memory limit, then connect like any other client.
-        rr.spawn(port=output.spawn_port, connect=False, memory_limit=output.memory_limit,
-                 executable_path=viewer_executable(), recording=recording)
-        url = f"rerun+http://127.0.0.1:{output.spawn_port}/proxy"
-        if url != output.connect:
-            sinks.append(rr.GrpcSink(url))
-        opened.messages.append(f"spawned the viewer (memory limit {output.memory_limit})")
-    server: rr.GrpcServerSink | None = None
+        try:
+            spawn_viewer(output.spawn_port, output.memory_limit)
+        except ViewerUnavailable as exc:
+            opened.messages.append(f"{exc}; {ALTERNATIVES}")
+        else:
+            url = f"rerun+http://127.0.0.1:{output.spawn_port}/proxy"
+            if url != output.connect:
+                sinks.append(rr.GrpcSink(url))
+            opened.messages.append(f"native viewer on 127.0.0.1:{output.spawn_port} (memory limit {output.memory_limit})")
     if output.web:
-        # Rerun reports a taken port only in its log; say so before anything is started.
-        for port in (output.grpc_port, output.web_port):
-            _require_free_port(port)
-        server = rr.GrpcServerSink(port=output.grpc_port, server_memory_limit=output.memory_limit)
-        sinks.append(server)
+        sinks.append(rr.GrpcServerSink(bind_ip=output.web_address, port=output.grpc_port,
+                                       server_memory_limit=output.memory_limit,
+                                       cors_allow_origin=page_origins(output.web_address, output.web_port)))
     if sinks:
         recording.set_sinks(*sinks, default_blueprint=blueprint)
-    if server is not None:
-        # The server listens on every interface; a browser on this machine reaches it at 127.0.0.1
-        # (browsers refuse 0.0.0.0). From elsewhere, replace 127.0.0.1 with this machine's address.
-        uri = f"rerun+http://127.0.0.1:{output.grpc_port}/proxy"
-        rr.serve_web_viewer(web_port=output.web_port, open_browser=False, connect_to=uri)
-        opened.web_url = f"http://localhost:{output.web_port}/?url={quote(uri, safe='')}"
-        opened.messages.append(f"web viewer: {opened.web_url} (server buffer {output.memory_limit})")
+    opened.destinations = len(sinks)
+    if output.web:
+        _serve_page(opened, output)
     return opened
 
 
-def _require_free_port(port: int) -> None:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
-        probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        try:
-            probe.bind(("0.0.0.0", port))
-        except OSError:
-            raise InputError(f"port {port} is in use (another viewer or lostx --web?); stop it first") from None
+def _with_ports(output: ViewerOutput) -> ViewerOutput:
+    """``output`` with free ports in place of 0; an error where a port asked for is taken."""
+    ports = {}
+    for name in ("web_port", "grpc_port"):
+        port = getattr(output, name)
+        if port == 0:
+            port = free_port(output.web_address, avoid=set(ports.values()))
+        elif not port_is_free(output.web_address, port):
+            # Rerun reports a taken port only in its log; say so before anything is started.
+            raise InputError(f"port {port} on {output.web_address} is in use (another lostx --web or Rerun viewer?); "
+                             f"stop it or choose another with --{name.replace('_', '-')}")
+        ports[name] = port
+    return dataclasses.replace(output, **ports)
 
 
-def viewer_executable() -> str | None:
-    """The ``rerun`` viewer: on PATH, else the one the rerun-sdk wheel ships in ``rerun_cli``.
+def page_origins(address: str, web_port: int) -> list[str]:
+    """Origins whose pages may read the recording from the gRPC server: the web viewer's own."""
+    if address in ("0.0.0.0", "::"):
+        return [f"http://*:{web_port}"]
+    host = f"[{address}]" if ":" in address else address
+    return list(dict.fromkeys([f"http://{host}:{web_port}", f"http://127.0.0.1:{web_port}", f"http://localhost:{web_port}"]))
 
-    A virtual environment's ``bin`` is on PATH only when it is activated; ``.venv/bin/lostx
-    --viewer`` run without activating it should still find the viewer installed beside it.
-    """
-    found = shutil.which("rerun")
-    if found:
-        return found
+
+def _serve_page(opened: OpenedOutput, output: ViewerOutput) -> None:
     try:
-        import rerun_cli
-    except ImportError:
-        return None
-    folder = Path(rerun_cli.__file__).parent
-    suffix = ".exe" if sys.platform.startswith("win") else ""
-    for candidate in (folder / "Rerun.app" / "Contents" / "MacOS" / "Rerun", folder / f"rerun{suffix}"):
-        if candidate.is_file():
-            return str(candidate)
-    return None
+        opened.web = WebViewer(output.web_address, output.web_port, output.grpc_port)
+    except (ViewerUnavailable, OSError) as exc:
+        opened.messages.append(f"{exc}; the recording is still served: open it with "
+                               f"`rerun rerun+http://127.0.0.1:{output.grpc_port}/proxy`")
+        return
+    opened.web_url = opened.web.url()
+    opened.messages.append(f"web viewer at {opened.web_url} (server buffer {output.memory_limit})")
+    if not is_loopback(output.web_address):
+        opened.messages.append(f"the web viewer listens on {output.web_address}: anyone who can reach this machine "
+                               f"on ports {output.web_port} and {output.grpc_port} sees the camera images")

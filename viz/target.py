@@ -7,6 +7,11 @@ from pathlib import Path
 
 DEFAULT_CONNECT = "rerun+http://127.0.0.1:9876/proxy"
 DEFAULT_MEMORY_LIMIT = "2GiB"
+DEFAULT_WEB_ADDRESS = "127.0.0.1"
+"""The web viewer listens on loopback unless told otherwise: camera images are not for the network."""
+WEB_PORT = 9090
+GRPC_PORT = 9877
+"""Rerun's own defaults: the web viewer's page, and the gRPC server it reads the recording from."""
 
 
 @dataclass(frozen=True)
@@ -21,12 +26,16 @@ class ViewerOutput:
     """Write the recording to this file (open it later with ``rerun FILE``)."""
     web: bool = False
     """Host a gRPC server and the web viewer; print the URL to open."""
+    web_address: str = DEFAULT_WEB_ADDRESS
+    """The address both of the web viewer's ports listen on (``0.0.0.0``: every interface)."""
     memory_limit: str = DEFAULT_MEMORY_LIMIT
     """Memory limit of the spawned viewer and of the web server's buffer (e.g. ``2GiB``, ``25%``);
     past it the oldest data is dropped."""
     spawn_port: int = 9876
-    grpc_port: int = 9877
-    web_port: int = 9090
+    grpc_port: int = GRPC_PORT
+    """0: a free port."""
+    web_port: int = WEB_PORT
+    """0: a free port."""
 
     @property
     def any(self) -> bool:

@@ -3,25 +3,36 @@
 It builds (or reuses) the day map, starts ``lostx serve`` on it, listens to the
 service's answers, and starts ``lostx replay`` on the night frames as a live
 stream; it prints each answer as it arrives and a summary against the index
-ground truth. Every process it starts is stopped on the way out (also on
-Ctrl-C and on errors).
+ground truth. With ``--web`` the service keeps serving the web viewer after the
+summary, until Ctrl-C. Every process it starts is stopped on the way out (also
+on Ctrl-C and on errors).
 """
 
 from __future__ import annotations
 
 import argparse
-import signal
 import tempfile
 import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from lostx.display import state_label
-from lostx.options import add_backbone_options, add_viewer_options, config_from_args, number, viewer_args, whole_number
+from lostx.options import (
+    VIEWER_NOTICE,
+    add_backbone_options,
+    add_viewer_options,
+    config_from_args,
+    number,
+    terminate_as_interrupt,
+    viewer_args,
+    whole_number,
+)
 
 if TYPE_CHECKING:
     from lostx.core.config import Config
     from lostx.core.refmap import ReferenceMap
+    from lostx.stream.client import Listener
+    from lostx.stream.processes import ProcessGroup
     from lostx.stream.protocol import Result, Stats
 
 
@@ -74,6 +85,7 @@ def run(args: argparse.Namespace) -> int:
     from lostx.core.outputs import check_output_folder
     from lostx.core.paths import cache_dir, data_dir
     from lostx.replay.folder import folder_traverse
+    from lostx.stream.processes import ProcessGroup
 
     config = config_from_args(args)
     data = (args.data or data_dir()) / "robotcar-daynight"
@@ -83,18 +95,14 @@ def run(args: argparse.Namespace) -> int:
     refmap = demo_map(data / "day", workdir / f"robotcar-day-{config.backbone.name}", config, args.rebuild)
     night = folder_traverse(data / "night")
     # SIGTERM ends the demo like Ctrl-C does, through the cleanup below.
-    previous = signal.signal(signal.SIGTERM, _raise_interrupt)
-    try:
-        with tempfile.TemporaryDirectory(prefix="lostx-demo-") as tmp:
-            answers, final = _stream(args, refmap, night, Path(tmp))
-    finally:
-        signal.signal(signal.SIGTERM, previous)
-    _summary(answers, len(night), final)
+    with terminate_as_interrupt(), tempfile.TemporaryDirectory(prefix="lostx-demo-") as tmp, \
+            ProcessGroup(log_dir=tmp) as procs:
+        notices = _ViewerNotices(procs)
+        answers, final = _stream(args, refmap, night, Path(tmp), procs, notices)
+        _summary(answers, len(night), final)
+        if args.web:
+            _keep_serving(procs, notices)
     return 0
-
-
-def _raise_interrupt(_signum: int, _frame: object) -> None:
-    raise KeyboardInterrupt
 
 
 def _backbone_args(args: argparse.Namespace) -> list[str]:
@@ -106,22 +114,56 @@ def _backbone_args(args: argparse.Namespace) -> list[str]:
     return out
 
 
-def _stream(args: argparse.Namespace, refmap: ReferenceMap, night, tmp: Path) -> tuple[dict[int, Result], Stats | None]:
-    """Service, listener (this process) and replay: the answers by frame id, and the service's final stats.
+class _ViewerNotices:
+    """Repeats the service's lines about the live view (its web viewer's URL, a viewer that cannot
+    start), which would otherwise stay in its log."""
+
+    def __init__(self, procs: ProcessGroup) -> None:
+        self.procs = procs
+        self.said: set[str] = set()
+        self.web_url: str | None = None
+
+    def echo(self) -> None:
+        for line in self.procs.log("serve").splitlines():
+            if line.startswith(VIEWER_NOTICE) and line not in self.said:
+                self.said.add(line)
+                print(line, flush=True)
+                if " web viewer at " in line:
+                    self.web_url = line.split(" web viewer at ", 1)[1].split()[0]
+
+
+def _keep_serving(procs: ProcessGroup, notices: _ViewerNotices) -> None:
+    """The summary is out: keep the service (and its web viewer) up until Ctrl-C."""
+    notices.echo()
+    if notices.web_url is None:
+        return
+    print(f"{VIEWER_NOTICE}serving the web viewer at {notices.web_url} until Ctrl-C", flush=True)
+    try:
+        while procs.processes["serve"].poll() is None:
+            time.sleep(0.5)
+    except KeyboardInterrupt:
+        return
+    print(f"{VIEWER_NOTICE}the service ended (code {procs.processes['serve'].returncode}); no more web viewer")
+
+
+def _stream(args: argparse.Namespace, refmap: ReferenceMap, night, tmp: Path, procs: ProcessGroup,
+            notices: _ViewerNotices) -> tuple[dict[int, Result], Stats | None]:
+    """Service, listener (this process) and replay: the answers by frame id, and the service's stats
+    (its final ones; with ``--web`` the service stays up, and they are its latest).
 
     The service runs lossless: on a loaded machine a slower localizer holds the replay back instead of
     dropping frames, so every night frame is answered. It keeps no journal (``--no-journal``): its one
     listener is this process, subscribed before the first frame and there until the last answer."""
     from lostx.stream.client import Listener
     from lostx.stream.errors import StreamError
-    from lostx.stream.processes import ProcessGroup, lostx_command
+    from lostx.stream.processes import lostx_command
     from lostx.stream.protocol import ErrorMessage, Result, Stats
 
     frames, results = f"ipc://{tmp}/frames", f"ipc://{tmp}/results"
     last_id = len(night) - 1
     answers: dict[int, Result] = {}
     final: Stats | None = None
-    with ProcessGroup(log_dir=tmp) as procs, Listener(results) as listener:
+    with Listener(results) as listener:
         # The service waits for this listener before it takes frames, so no answer is missed.
         procs.start("serve", lostx_command("serve", "--map", str(refmap.path), "--frames", frames,
                                            "--results", results, "--mode", "lossless", "--no-journal",
@@ -137,6 +179,7 @@ def _stream(args: argparse.Namespace, refmap: ReferenceMap, night, tmp: Path) ->
         deadline = time.monotonic() + 120
         while last_id not in answers:
             message = listener.receive(0.5)
+            notices.echo()
             if isinstance(message, Result):
                 answers[message.frame_id] = message
                 print(_row(message, night, refmap), flush=True)
@@ -149,6 +192,8 @@ def _stream(args: argparse.Namespace, refmap: ReferenceMap, night, tmp: Path) ->
             if time.monotonic() > deadline:
                 raise StreamError("the service did not answer the last frame within 120 s:\n" + procs.log("serve"))
         # Lossless answers come in order, so once the last frame is answered all are.
+        if args.web:
+            return answers, _next_stats(listener)
         code = procs.stop("serve")
         while final is None:
             message = listener.receive(2.0)
@@ -159,6 +204,18 @@ def _stream(args: argparse.Namespace, refmap: ReferenceMap, night, tmp: Path) ->
         if code != 0:
             raise StreamError(f"lostx serve exited with code {code}:\n{procs.log('serve').strip()}")
     return answers, final
+
+
+def _next_stats(listener: Listener, timeout: float = 5.0) -> Stats | None:
+    """The service's next stats message (sent every second), counting every answer so far."""
+    from lostx.stream.protocol import Stats
+
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        message = listener.receive(0.5)
+        if isinstance(message, Stats):
+            return message
+    return None
 
 
 def _row(r: Result, night, refmap: ReferenceMap) -> str:

@@ -13,11 +13,11 @@ from lostx.options import (
     add_config_options,
     add_source_options,
     add_viewer_options,
-    close_viewer,
     config_from_args,
+    live_view,
     print_notes,
+    serve_until_interrupted,
     source_options_from_args,
-    viewer_sink_from_args,
 )
 
 if TYPE_CHECKING:
@@ -84,10 +84,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"note: the sequence window is {window} frames and {args.queries} has {len(queries)}: the window "
               f"never fills, so every answer is not_localized; pass --window {len(queries)} or less")
     localizer = Localizer(refmap, config)
-    sink = viewer_sink_from_args(args, refmap)
-    start = time.perf_counter()
-    rows, estimates = [], []
-    try:
+    with live_view(args, refmap) as sink:
+        start = time.perf_counter()
+        rows, estimates = [], []
         with tqdm(queries, total=len(queries), desc="matching", unit="frame", disable=args.quiet, leave=False) as bar:
             for frame in bar:
                 estimate = localizer.step(frame)
@@ -95,11 +94,11 @@ def run(args: argparse.Namespace) -> int:
                     sink(frame, estimate)
                 estimates.append(estimate)
                 rows.append(csv_row(frame.name, estimate, refmap, args.sequence))
-    finally:
-        close_viewer(sink)
-    elapsed = time.perf_counter() - start
-    write_csv(args.out, COLUMNS + (SEQUENCE_COLUMNS if args.sequence else []) + HEADING_COLUMNS, rows)
-    print(summary_line(estimates, elapsed, args.out, window if args.sequence else None))
+        elapsed = time.perf_counter() - start
+        write_csv(args.out, COLUMNS + (SEQUENCE_COLUMNS if args.sequence else []) + HEADING_COLUMNS, rows)
+        print(summary_line(estimates, elapsed, args.out, window if args.sequence else None), flush=True)
+        # The results are written: the web viewer may stay up as long as the user likes.
+        serve_until_interrupted(sink)
     return 0
 
 
