@@ -19,7 +19,7 @@ from pathlib import Path
 
 from .base import quiet_stderr
 from .description import description_path
-from .espnet import CITYSCAPES_CLASSES, IMAGENET_MEAN, IMAGENET_STD, INPUT_SIZE, load_network
+from .espnet import CITYSCAPES_CLASSES, DEFAULT_CLASSES, IMAGENET_MEAN, IMAGENET_STD, INPUT_SIZE, load_network
 from ..errors import InputError, ModelError
 
 OPSET = 18
@@ -36,6 +36,8 @@ def description_text(model_file: str, source: str) -> str:
     """The TOML describing the exported model (``model_file`` beside it)."""
     mean = [round(255.0 * v, 6) for v in IMAGENET_MEAN]
     std = [round(255.0 * v, 6) for v in IMAGENET_STD]
+    # The PyTorch backbone's own class groups, not a preset: the exported model describes frames as it does.
+    groups = ", ".join(f"{group} = {json.dumps(list(members))}" for group, members in DEFAULT_CLASSES.items())
     return "\n".join([
         f"# ESPNetv2 (scale 2.0, Cityscapes), exported from {source} by `lostx backbones export-onnx`",
         f"model = {json.dumps(model_file)}",
@@ -46,7 +48,7 @@ def description_text(model_file: str, source: str) -> str:
         f"mean = {mean}",
         f"std = {std}",
         f"classes = {json.dumps(list(CITYSCAPES_CLASSES))}",
-        'default_classes = "street"',
+        f"default_classes = {{ {groups} }}",
         "",
     ])
 
