@@ -86,7 +86,9 @@ class RayDescribers:
             actors = [actor.remote(config, thumbnail) for _ in range(workers)]
             pool = ActorPool(actors)
             shared = ray.put(frames)
-            step = self.task_frames
+            # A small build is still shared out: every worker gets a task where there are frames enough.
+            frames_left = sum(stop - start for start, stop in ranges)
+            step = max(1, min(self.task_frames, -(-frames_left // workers)))
             tasks = [(a, min(a + step, stop)) for start, stop in ranges for a in range(start, stop, step)]
             for chunks, identity in pool.map_unordered(lambda w, task: w.describe.remote(shared, *task), tasks):
                 for chunk in chunks:

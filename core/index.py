@@ -104,9 +104,9 @@ class ApproximateIndex:
 
     def search(self, query: np.ndarray, k: int, breadth: int) -> np.ndarray:
         """Up to ``k`` map frames near ``query``, as the index ranks them (approximately)."""
-        k = min(k, self.n_frames)
+        k = int(min(k, self.n_frames))  # faiss takes Python ints only
         vector = np.ascontiguousarray(np.asarray(query, dtype=np.float32).reshape(1, -1))
-        _, ids = self._index.search(vector, k, params=self._params(efSearch=max(breadth, k)))
+        _, ids = self._index.search(vector, k, params=self._params(efSearch=int(max(breadth, k))))
         found = ids[0]
         return found[found >= 0].astype(np.int64)
 

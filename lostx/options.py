@@ -82,6 +82,9 @@ def add_config_options(parser: argparse.ArgumentParser, matching: bool = True) -
     group.add_argument("--window", type=whole_number(1), metavar="L",
                        help=f"frames in the sequence filter's window (default {DEFAULTS.sequence.length})")
     group.add_argument("--no-tracker", action="store_true", help="answer without the route tracker")
+    group.add_argument("--index", choices=["auto", "on", "off"],
+                       help="search the map's approximate index: auto (default: maps of at least "
+                       f"{DEFAULTS.search.index_min_frames} frames), on (any size), off (compare every frame)")
 
 
 def config_from_args(args: argparse.Namespace) -> Config:
@@ -105,7 +108,10 @@ def config_from_args(args: argparse.Namespace) -> Config:
         sequence = dataclasses.replace(sequence, length=args.window)
     if getattr(args, "no_tracker", False):
         tracker = dataclasses.replace(tracker, enabled=False)
-    return dataclasses.replace(config, backbone=backbone, lost=lost, verify=verify, sequence=sequence,
+    search = config.search
+    if getattr(args, "index", None):
+        search = dataclasses.replace(search, index=args.index)
+    return dataclasses.replace(config, backbone=backbone, lost=lost, verify=verify, search=search, sequence=sequence,
                                tracker=tracker)
 
 

@@ -11,6 +11,7 @@ from lostx.options import (
     config_from_args,
     print_notes,
     source_options_from_args,
+    whole_number,
 )
 
 
@@ -30,13 +31,24 @@ def register(sub: argparse._SubParsersAction) -> None:
                        help="LoST-X (default) or SeqSLAM thumbnails (no network)")
     build.add_argument("--overwrite", action="store_true", help="replace an existing map at --out")
     build.add_argument("--quiet", action="store_true", help="no progress bar")
+    build.add_argument("--ray", nargs="?", const="", metavar="ADDRESS",
+                       help="describe the frames on a Ray cluster: ADDRESS as ray.init takes it (auto, "
+                       "ray://HOST:10001); without one, a Ray instance started on this machine for the build "
+                       "(needs pip install \"lostx[ray]\"; see docs/scale.md)")
+    build.add_argument("--ray-workers", type=whole_number(1), metavar="N",
+                       help="describers at once on Ray (default: one per GPU, else one per backbone.threads CPUs)")
     add_source_options(build)
     add_config_options(build, matching=False)
     build.set_defaults(run=run_build)
 
     info = verbs.add_parser("info", help="describe a map")
     info.add_argument("map", type=Path)
-    info.add_argument("--verify", action="store_true", help="also check every file's checksum")
+    info.add_argument("--verify", action="store_true",
+                      help="also check every file's checksum and measure the index's Recall@10 against exact search")
+    info.add_argument("--samples", type=whole_number(1), metavar="N",
+                      help="map frames --verify searches for (default 500, evenly spaced)")
+    info.add_argument("--config", type=Path, help="TOML file of settings: the [search] breadth and shortlist --verify "
+                      "measures (see docs/config.md)")
     info.set_defaults(run=run_info)
 
 
@@ -59,8 +71,15 @@ def run_build(args: argparse.Namespace) -> int:
     else:
         describer = ThumbnailDescriber()
     metadata = {"camera": camera, "image_root": str(traverse.root.resolve())}
+    cluster = None
+    if args.ray is not None:
+        # Ray is imported only here: a build without --ray runs as it always did, Ray installed or not.
+        from lostx.cluster.raybuild import RayDescribers
+
+        cluster = RayDescribers(args.ray or None, args.ray_workers)
     summary = build_map(traverse, args.out, config, describer, metadata, overwrite=args.overwrite,
-                        total=len(traverse), progress=not args.quiet, label=f"describing {traverse.root.name}")
+                        total=len(traverse), progress=not args.quiet, label=f"describing {traverse.root.name}",
+                        cluster=cluster)
     print(
         f"built {summary.path}: {summary.n_frames} frames ({args.descriptor}) in {summary.seconds:.1f} s, "
         f"{summary.bytes / 1e6:.2f} MB ({summary.bytes_per_frame / 1e3:.1f} kB per frame)"
@@ -91,6 +110,29 @@ def run_info(args: argparse.Namespace) -> int:
               f"{looks['brightness'][1]:.0f} of 255")
     print(f"positions  {'yes' if refmap.positions is not None else 'no'}")
     print(f"size       {refmap.nbytes / 1e6:.2f} MB ({refmap.nbytes / refmap.n_frames / 1e3:.1f} kB per frame)")
+    index = m.get("index")
+    if index:
+        print(f"index      {index['metric']} HNSW over 8-bit codes ({index['neighbours']} neighbours), "
+              f"{index['bytes'] / 1e6:.2f} MB")
+    else:
+        print("index      none (built by an older lostx: every search compares every frame)")
     if args.verify:
         print("checksums  all files match")
+        if index:
+            _print_recall(refmap, args)
     return 0
+
+
+def _print_recall(refmap, args: argparse.Namespace) -> None:  # noqa: ANN001 (ReferenceMap: imported lazily)
+    from tqdm import tqdm
+
+    from lostx.core.config import load_config
+    from lostx.core.indexcheck import SAMPLES, index_recall
+
+    search = load_config(args.config).search
+    samples = args.samples or SAMPLES
+    with tqdm(total=min(samples, refmap.n_frames), desc="index against exact", unit="query", leave=False) as bar:
+        r = index_recall(refmap, search, samples=samples, progress=bar.update)
+    print(f"recall     Recall@{r.k} {r.recall:.3f} against exact search (worst frame {r.worst:.2f}) on {r.queries} "
+          f"map frames, breadth {r.breadth}, shortlist {r.shortlist}; {r.index_ms:.2f} ms per index search, "
+          f"{r.exact_ms:.2f} ms exact")
