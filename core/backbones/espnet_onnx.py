@@ -19,7 +19,7 @@ from pathlib import Path
 
 from .base import quiet_stderr
 from .description import description_path
-from .espnet import CITYSCAPES_CLASSES, IMAGENET_MEAN, IMAGENET_STD, INPUT_SIZE, load_network
+from .espnet import CITYSCAPES_CLASSES, DEFAULT_CLASSES, IMAGENET_MEAN, IMAGENET_STD, INPUT_SIZE, load_network
 from ..errors import InputError, ModelError
 
 OPSET = 18
@@ -46,7 +46,9 @@ def description_text(model_file: str, source: str) -> str:
         f"mean = {mean}",
         f"std = {std}",
         f"classes = {json.dumps(list(CITYSCAPES_CLASSES))}",
-        'default_classes = "street"',
+        # the PyTorch backbone's own groups, so that both give the same descriptors
+        "default_classes = { " + ", ".join(f"{group} = {json.dumps(list(members))}"
+                                           for group, members in DEFAULT_CLASSES.items()) + " }",
         "",
     ])
 
