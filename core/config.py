@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 from .errors import InputError
+from .frame import CAMERAS
 
 Scoring = Literal["eq4-lost", "eq4", "released"]
 Fit = Literal["squash", "crop", "pad"]
@@ -364,11 +365,7 @@ def check_config(config: Config) -> None:
                 continue  # no such setting (any more): tests/test_config.py keeps LIMITS in step with the sections
             if isinstance(value, tuple) and not value:
                 raise InputError(f"[{section}] {key} must not be empty")
-            if isinstance(value, dict) and value:
-                # Imported here: lostx.core.frame loads numpy, which building the command line (and its
-                # default settings, with no camera named) must not.
-                from .frame import CAMERAS
-
+            if isinstance(value, dict):
                 unknown = sorted(set(value) - set(CAMERAS))
                 if unknown:
                     raise InputError(f"[{section}] {key}: unknown camera {unknown[0]!r}; cameras: {', '.join(CAMERAS)}")

@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
-import numpy as np
+if TYPE_CHECKING:  # only named in annotations: the CLI's parser reads this module's vocabulary without numpy
+    import numpy as np
 
 Camera = Literal["front", "rear"]
 CAMERAS: tuple[str, ...] = ("front", "rear")

@@ -6,6 +6,8 @@ import numpy as np
 import pytest
 
 from lostx.core.build import _windowed
+from lostx.core.camera import Geometry
+from lostx.core.config import CameraConfig
 from lostx.core.classes import ClassGroups
 from lostx.core.describe import DescribedFrame, TrailingMeans
 from lostx.core.errors import InputError
@@ -86,9 +88,10 @@ def _fake_frames(n: int, rng: np.random.Generator) -> tuple[list[Frame], list[De
 def test_streamed_reference_window_equals_brute_force(rng, n, window):
     frames, described = _fake_frames(n, rng)
     lookup = {id(f.image): d for f, d in zip(frames, described)}
-    out = list(_windowed(frames, lambda image: lookup[id(image)], window))
-    assert [f.id for f, _, _ in out] == list(range(n))
-    for j, (_, d, mu) in enumerate(out):
+    as_is = Geometry(CameraConfig(), None, "squash", None)
+    out = list(_windowed(frames, lambda image: lookup[id(image)], as_is, window))
+    assert [(j, f.id) for j, f, _, _ in out] == [(i, i) for i in range(n)]
+    for j, (_, _, d, mu) in enumerate(out):
         span = centred_window(j, n, window)
         chosen = described[span.start : span.stop]
         expected, _ = window_means(np.stack([c.means for c in chosen]), np.stack([c.present for c in chosen]))

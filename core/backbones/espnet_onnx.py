@@ -36,8 +36,6 @@ def description_text(model_file: str, source: str) -> str:
     """The TOML describing the exported model (``model_file`` beside it)."""
     mean = [round(255.0 * v, 6) for v in IMAGENET_MEAN]
     std = [round(255.0 * v, 6) for v in IMAGENET_STD]
-    # The PyTorch backbone's own class groups, not a preset: the exported model describes frames as it does.
-    groups = ", ".join(f"{group} = {json.dumps(list(members))}" for group, members in DEFAULT_CLASSES.items())
     return "\n".join([
         f"# ESPNetv2 (scale 2.0, Cityscapes), exported from {source} by `lostx backbones export-onnx`",
         f"model = {json.dumps(model_file)}",
@@ -48,7 +46,9 @@ def description_text(model_file: str, source: str) -> str:
         f"mean = {mean}",
         f"std = {std}",
         f"classes = {json.dumps(list(CITYSCAPES_CLASSES))}",
-        f"default_classes = {{ {groups} }}",
+        # the PyTorch backbone's own groups, so that both give the same descriptors
+        "default_classes = { " + ", ".join(f"{group} = {json.dumps(list(members))}"
+                                           for group, members in DEFAULT_CLASSES.items()) + " }",
         "",
     ])
 
