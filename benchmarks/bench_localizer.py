@@ -1,18 +1,26 @@
-"""Time per Localizer.step, excluding the network, at map sizes 1k, 10k and 100k (issue 3).
+"""Time per frame of everything after the network, at map sizes up to 1,000,000 frames: with the map's
+approximate index and with exact search, side by side in one run.
 
-The maps are thumbnail maps of synthetic descriptors (the size is what
-matters here: a 100k-frame LoST map would be 4.7 GB on disk), queried with
-real-sized thumbnails whose true place moves one reference per frame, so the
-sequence filter and tracker run as they do on a real traverse. The LoST
-candidate search (cosine over 1344-dim descriptors) is timed on its own at the
-same sizes. Stages: search (single-frame, grows with the map, as any
-exhaustive search does), costs (normalising the frame's cost for every
-reference: also O(map size)), sequence (the trajectory update: must not grow),
-tracker. The sequence update is timed twice: searching both directions of
-travel (the default when the query camera is not declared) and one (a declared
-camera whose heading is known), to show what the second hypothesis costs.
+The map descriptors are LoST descriptors sampled around real ones: each is a real map frame's
+normalised descriptor (``--real``, by default a LoST map of the Nordland summer frames, built once)
+plus Gaussian noise, renormalised. The queries are map frames plus as much noise again, their true
+place moving one map frame per step, so the sequence filter and tracker run as on a real traverse.
 
-    python benchmarks/bench_localizer.py [--sizes 1000 10000 100000] [--steps 200]
+Stages, per frame:
+
+- search: the matcher's search (``sequence.nearest`` map frames, ranked by exact distance) through
+  the index (faiss HNSW over 8-bit codes, as a map stores it) and exactly; the index's Recall@10
+  against exact on the same queries.
+- verify: keypoint verification of the top ``verify.top_k`` on the real map (it reads only the k
+  candidates' evidence, so the map's size does not change it).
+- costs, sequence, tracker: ``Localizer.step`` on a map of this size, its single-frame answers
+  standing in for the matcher's (costs looked up are the LoST distances of the sampled
+  descriptors).
+
+"after the network" is descriptor + search + verify + costs + sequence + tracker; memory per map
+frame is the map's descriptors (float16), the index and the per-frame evidence of the real map.
+
+    python benchmarks/bench_localizer.py [--sizes 1000 10000 100000 1000000] [--steps 200] [--real MAP]
 """
 
 from __future__ import annotations
@@ -20,7 +28,11 @@ from __future__ import annotations
 import common  # noqa: F401  (first: it limits numpy's BLAS threads before numpy loads)
 
 import argparse
+import os
+import resource
 import tempfile
+import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -28,35 +40,109 @@ import numpy as np
 from common import RESULTS, print_table, summary, time_call, write_json
 from lostx.core import Config, Frame, Localizer, ReferenceMap
 from lostx.core.calibration import Calibration
-from lostx.core.config import HeadingConfig
-from lostx.core.matcher import FrameMatch, MatchResult
+from lostx.core.config import HeadingConfig, SearchConfig
+from lostx.core.costs import MapScores
+from lostx.core.index import ApproximateIndex, build_index
 from lostx.core.mapwriter import MapFrame, MapWriter
-from lostx.core.search import cosine_distances, sad_distances, top_k
+from lostx.core.matcher import FrameMatch, MatchResult, PlaceMatcher
+from lostx.core.paths import data_dir
+from lostx.core.search import CandidateSearch, cosine_distances
+
+NOISE = 0.5
+"""Noise per dimension, relative to a unit descriptor's typical component (1 / sqrt(K))."""
+BLOCK = 65536
+DEFAULT_REAL = Path.home() / ".cache" / "lostx-bench" / "nordland-summer-lost"
 
 
-def thumbnail_map(out: Path, n: int, rng: np.random.Generator) -> tuple[ReferenceMap, np.ndarray]:
-    descriptors = rng.integers(124, 133, (n, 2048)).astype(np.uint8)
-    with MapWriter(out, "thumbnail", {"camera": "front", "thumbnail": {"size": [64, 32], "patch": 8}}) as writer:
-        for i in range(n):
-            writer.add(MapFrame(f"{i:06d}", descriptors[i]))
-        writer.commit()
-    return ReferenceMap.open(out), descriptors
+def real_map(path: Path) -> ReferenceMap:
+    """The real LoST map the descriptors are sampled around (built from the Nordland summer frames once)."""
+    if not (path / "manifest.json").is_file():
+        from lostx.core.build import build_map
+        from lostx.replay.folder import folder_traverse
+
+        path.parent.mkdir(parents=True, exist_ok=True)
+        build_map(folder_traverse(data_dir() / "nordland-64x32" / "summer"), path, overwrite=True)
+    return ReferenceMap.open(path)
 
 
-class SyntheticQueries:
-    """Stands in for the describing step only: the query at step t is reference t plus noise."""
+def sampled(real: np.ndarray, rows: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Unit descriptors around ``real[rows]``."""
+    out = real[rows] + rng.normal(0.0, NOISE / np.sqrt(real.shape[1]), (len(rows), real.shape[1])).astype(np.float32)
+    out /= np.linalg.norm(out, axis=1, keepdims=True)
+    return out
 
-    def __init__(self, refs: np.ndarray, rng: np.random.Generator) -> None:
-        self.refs, self.rng, self.t = refs, rng, 0
+
+@dataclass
+class DescriptorMap:
+    """What :class:`CandidateSearch` reads of a map: its descriptors and its index."""
+
+    descriptors: np.ndarray
+    index: ApproximateIndex | None
+    path: Path
+    kind: str = "lost"
+
+    @property
+    def n_frames(self) -> int:
+        return len(self.descriptors)
+
+    def descriptor_rows(self, indices: np.ndarray) -> np.ndarray:
+        return self.descriptors[np.asarray(indices, dtype=np.int64)]
+
+
+def lost_map(n: int, real: np.ndarray, folder: Path, rng: np.random.Generator, threads: int) -> tuple[DescriptorMap, dict]:
+    descriptors = np.empty((n, real.shape[1]), np.float32)
+    for start in range(0, n, BLOCK):
+        stop = min(n, start + BLOCK)
+        descriptors[start:stop] = sampled(real, rng.integers(0, len(real), stop - start), rng)
+    t0 = time.perf_counter()
+    info = build_index(descriptors.astype(np.float16), "lost", folder, threads=threads)
+    built = time.perf_counter() - t0
+    index = ApproximateIndex(folder / info.file, n)
+    return DescriptorMap(descriptors, index, folder), {"index_bytes": info.bytes, "index_build_s": built,
+                                                      "index_build_threads": threads}
+
+
+def search_stage(refs: DescriptorMap, config: Config, rng: np.random.Generator, queries: int) -> dict:
+    """The matcher's search through the index and exactly, and the index's Recall@10 on the same queries."""
+    count = max(config.sequence.nearest, config.verify.top_k)
+    indexed = CandidateSearch(refs, SearchConfig(index="on"))  # type: ignore[arg-type]
+    exact = CandidateSearch(refs, SearchConfig(index="off"))  # type: ignore[arg-type]
+    places = rng.integers(0, refs.n_frames, queries)
+    vectors = sampled(refs.descriptors, places, rng)
+    found = []
+    for q in vectors:
+        _, near = indexed.nearest(q, 10)
+        _, truth = exact.nearest(q, 10)
+        found.append(np.count_nonzero(near <= truth[-1] + 1e-6) / 10)
+    it = iter(range(10**9))
+    index_ms = time_call(lambda: indexed.nearest(vectors[next(it) % queries], count), queries)
+    it = iter(range(10**9))
+    exact_ms = time_call(lambda: exact.nearest(vectors[next(it) % queries], count), min(queries, 20))
+    return {"index": summary(index_ms), "exact": summary(exact_ms), "recall_at_10": float(np.mean(found))}
+
+
+class SyntheticAnswers:
+    """Stands in for the matcher: the query at step t is map frame t plus noise; its map scores are its
+    exact LoST distances, looked up as the sequence filter asks; its nearest frames those around its place
+    and the rest of a shortlist drawn from the map (the search itself is timed apart)."""
+
+    def __init__(self, refs: DescriptorMap, nearest: int, rng: np.random.Generator) -> None:
+        self.refs, self.nearest, self.rng, self.t = refs, nearest, rng, 0
         self.last_evidence = None
 
-    def match(self, image: np.ndarray) -> FrameMatch:
-        noise = self.rng.integers(-2, 3, self.refs.shape[1])
-        query = np.clip(self.refs[self.t % len(self.refs)].astype(np.int16) + noise, 0, 255).astype(np.uint8)
+    def match(self, image: np.ndarray, camera: str | None = None) -> FrameMatch:
+        n = self.refs.n_frames
+        place = self.t % n
         self.t += 1
-        distances = sad_distances(query, self.refs)
-        order = top_k(distances, 10)
-        return FrameMatch.either(MatchResult(order, distances[order], distances[order], 1.0, map_scores=distances,
+        query = sampled(self.refs.descriptors, np.array([place]), self.rng)[0]
+        near = np.unique(np.concatenate([np.clip(np.arange(place - 5, place + 6), 0, n - 1),
+                                         self.rng.integers(0, n, self.nearest)]))
+        distances = cosine_distances(query, self.refs.descriptor_rows(near))
+        order = np.argsort(distances, kind="stable")[: self.nearest]
+        scores = MapScores(lambda rows: cosine_distances(query, self.refs.descriptor_rows(rows)), n)
+        top = near[order[:10]]
+        return FrameMatch.either(MatchResult(top, distances[order[:10]], distances[order[:10]], 1.0,
+                                             map_scores=scores, nearest=near[order],
                                              timings={"network": 0.0, "descriptor": 0.0, "search": 0.0,
                                                       "verify": 0.0}))
 
@@ -69,61 +155,114 @@ class SyntheticQueries:
 SURE = Calibration(np.zeros(999), np.zeros(999), {})
 
 
-def timed_steps(refmap: ReferenceMap, refs: np.ndarray, n: int, steps: int, one_direction: bool) -> tuple[dict, list, str]:
-    config = Config(heading=HeadingConfig(declared_prior=1.0)) if one_direction else Config()
+def stub_map(out: Path, n: int) -> ReferenceMap:
+    """A map of ``n`` frames for the localizer to hold (its own descriptors are never searched here)."""
+    with MapWriter(out, "thumbnail", {"camera": "front", "thumbnail": {"size": [4, 2], "patch": 2}},
+                   index=False) as writer:
+        blank = np.zeros(8, np.uint8)
+        for i in range(n):
+            writer.add(MapFrame(f"{i:07d}", blank))
+        writer.commit()
+    return ReferenceMap.open(out)
+
+
+def step_stages(refmap: ReferenceMap, refs: DescriptorMap, steps: int, one_direction: bool) -> dict[str, list[float]]:
+    search = SearchConfig(index="off")
+    heading = HeadingConfig(declared_prior=1.0) if one_direction else HeadingConfig()
+    config = Config(search=search, heading=heading)
     localizer = Localizer(refmap, config, calibration=SURE)
-    localizer.matcher = SyntheticQueries(refs, np.random.default_rng(n))  # type: ignore[assignment]
+    localizer.matcher = SyntheticAnswers(refs, config.sequence.nearest, np.random.default_rng(refs.n_frames))  # type: ignore[assignment]
     # Declared and trusted, the heading is known and so is the direction of travel: one sign searched.
     frame = Frame(0, np.zeros((32, 64, 3), dtype=np.uint8), camera="front" if one_direction else None)
     stages: dict[str, list[float]] = {"costs": [], "sequence": [], "tracker": []}
-    totals = []
     for _ in range(steps):
         estimate = localizer.step(frame)
         for k in stages:
             stages[k].append(estimate.latency_ms[k])
-        totals.append(estimate.latency_ms["total"])
-    return stages, totals, estimate.state
+    stages["state"] = [estimate.state == "localized"]  # type: ignore[list-item]
+    return stages
 
 
-def run_size(n: int, steps: int) -> dict:
+def network_free_stages(real: ReferenceMap, queries: int) -> dict:
+    """Descriptor and verification times on the real map, from real query frames (the winter traverse)."""
+    from lostx.core.backbones import load_backbone
+    from lostx.replay.folder import folder_traverse
+
+    matcher = PlaceMatcher(real, Config(search=SearchConfig(index="off")), load_backbone())
+    winter = folder_traverse(data_dir() / "nordland-64x32" / "winter")
+    descriptor, verify = [], []
+    for frame in winter.subset(range(0, queries * 10, 10)):
+        described = matcher.describe(frame.image)
+        t = time.perf_counter()
+        result = matcher.match_description(described)
+        wall = time.perf_counter() - t
+        descriptor.append(1e3 * described.timings["descriptor"])
+        # Verification, ranking and the heading vote: all of the match but its search.
+        verify.append(1e3 * (wall - result.same.timings["search"]))
+    return {"descriptor": summary(descriptor), "verify": summary(verify)}
+
+
+def run_size(n: int, real: np.ndarray, steps: int, queries: int, threads: int) -> dict:
     rng = np.random.default_rng(n)
     with tempfile.TemporaryDirectory() as tmp:
-        refmap, refs = thumbnail_map(Path(tmp) / "map", n, rng)
-        queries = SyntheticQueries(refs, rng)
-        search = time_call(lambda: queries.match(np.zeros((32, 64, 3), dtype=np.uint8)), 20)
-        one, _, _ = timed_steps(refmap, refs, n, steps, one_direction=True)
-        stages, totals, localized = timed_steps(refmap, refs, n, steps, one_direction=False)
-    lost_refs = np.random.default_rng(1).normal(size=(n, 1344)).astype(np.float32)
-    lost_query = lost_refs[0]
-    lost_search = time_call(lambda: top_k(cosine_distances(lost_query, lost_refs), 10), 20)
+        refs, built = lost_map(n, real, Path(tmp), rng, threads)
+        search = search_stage(refs, Config(), rng, queries)
+        refmap = stub_map(Path(tmp) / "map", n)
+        one = step_stages(refmap, refs, steps, one_direction=True)
+        both = step_stages(refmap, refs, steps, one_direction=False)
     return {
         "map_frames": n,
-        "thumbnail_search": summary(search),
-        "lost_search": summary(lost_search),
-        "costs": summary(stages["costs"]),
-        "sequence": summary(stages["sequence"]),
+        **built,
+        "index_bytes_per_frame": built["index_bytes"] / n,
+        "search_index": search["index"],
+        "search_exact": search["exact"],
+        "exact_over_index": search["exact"]["median_ms"] / search["index"]["median_ms"],
+        "recall_at_10": search["recall_at_10"],
+        "costs": summary(both["costs"]),
+        "sequence": summary(both["sequence"]),
         "sequence_one_direction": summary(one["sequence"]),
-        "tracker": summary(stages["tracker"]),
-        "step_total": summary(totals),
-        "last_state": localized,
+        "tracker": summary(both["tracker"]),
+        "localized_at_end": bool(both["state"][0]),
     }
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--sizes", type=int, nargs="+", default=[1000, 10000, 100000])
-    parser.add_argument("--steps", type=int, default=200, help="steps timed per map size")
+    parser.add_argument("--sizes", type=int, nargs="+", default=[1000, 10000, 100000, 1000000])
+    parser.add_argument("--steps", type=int, default=200, help="localizer steps timed per map size")
+    parser.add_argument("--queries", type=int, default=200, help="searches timed per map size")
+    parser.add_argument("--real", type=Path, default=DEFAULT_REAL, help="a LoST map to sample descriptors around")
+    parser.add_argument("--build-threads", type=int, default=os.cpu_count() or 1,
+                        help="threads building each index (a benchmark's graph need not be reproducible)")
     parser.add_argument("--out", type=Path, default=RESULTS / "localizer.json")
     args = parser.parse_args()
-    results = [run_size(n, args.steps) for n in args.sizes]
-    rows = [[r["map_frames"], r["lost_search"]["median_ms"], r["thumbnail_search"]["median_ms"],
-             r["costs"]["median_ms"], r["sequence"]["median_ms"], r["sequence"]["p90_ms"],
-             r["sequence_one_direction"]["median_ms"], r["tracker"]["median_ms"],
-             r["step_total"]["median_ms"]] for r in results]
-    print_table("Localizer.step without the network (median ms; sequence p90 too)",
-                ["map frames", "LoST search", "thumbnail search", "costs", "sequence (both directions)",
-                 "sequence p90", "sequence (one direction)", "tracker", "step (thumbnails)"], rows)
-    write_json(args.out, {"benchmark": "localizer", "sizes": results})
+    real = real_map(args.real)
+    fixed = network_free_stages(real, 50)
+    per_frame_evidence = sum(int(e["bytes"]) for name, e in real.manifest["arrays"].items()
+                             if name not in ("descriptors", "appearance")) / real.n_frames
+    vectors = np.asarray(real.descriptors, dtype=np.float32)
+    results = [run_size(n, vectors, args.steps, args.queries, args.build_threads) for n in args.sizes]
+    fixed_ms = fixed["descriptor"]["median_ms"] + fixed["verify"]["median_ms"]
+    rows = []
+    for r in results:
+        rest = r["costs"]["median_ms"] + r["sequence"]["median_ms"] + r["tracker"]["median_ms"]
+        r["after_network_index_ms"] = fixed_ms + r["search_index"]["median_ms"] + rest
+        r["after_network_exact_ms"] = fixed_ms + r["search_exact"]["median_ms"] + rest
+        r["bytes_per_frame"] = 2 * vectors.shape[1] + r["index_bytes_per_frame"] + per_frame_evidence
+        rows.append([r["map_frames"], r["search_index"]["median_ms"], r["search_exact"]["median_ms"],
+                     r["exact_over_index"], r["recall_at_10"], r["costs"]["median_ms"], r["sequence"]["median_ms"],
+                     r["sequence"]["p90_ms"], r["tracker"]["median_ms"], r["after_network_index_ms"],
+                     r["after_network_exact_ms"], r["bytes_per_frame"] / 1e3])
+    print(f"\ndescriptor {fixed['descriptor']['median_ms']:.3g} ms, verify {fixed['verify']['median_ms']:.3g} ms "
+          f"(median, real Nordland map and queries; independent of the map's size)")
+    print_table("Everything after the network, per frame (median ms; sequence p90 too)",
+                ["map frames", "search (index)", "search (exact)", "exact / index", "index Recall@10", "costs",
+                 "sequence", "sequence p90", "tracker", "after network (index)", "after network (exact)",
+                 "kB per map frame"], rows)
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6
+    write_json(args.out, {"benchmark": "localizer", "real_map": str(args.real), "noise": NOISE,
+                          "fixed_stages": fixed, "evidence_bytes_per_frame": per_frame_evidence,
+                          "peak_rss_gb": peak, "sizes": results})
 
 
 if __name__ == "__main__":

@@ -40,10 +40,10 @@ TRAIN_FRAMES = 200_000
 ADD_BLOCK = 8192
 
 
-def _faiss() -> Any:
+def _faiss(threads: int = 1) -> Any:
     import faiss
 
-    faiss.omp_set_num_threads(1)
+    faiss.omp_set_num_threads(threads)
     return faiss
 
 
@@ -63,10 +63,13 @@ class IndexInfo:
 
 
 def build_index(descriptors: np.ndarray, kind: "MapKind", folder: Path,
-                progress: Callable[[int], None] | None = None) -> IndexInfo:
+                progress: Callable[[int], None] | None = None, threads: int = 1) -> IndexInfo:
     """Index the (N, K) stored descriptors (float16 LoST, uint8 thumbnails; a memory map will do) into
-    ``folder / INDEX_FILE``. ``progress`` is told how many frames were added, block by block."""
-    faiss = _faiss()
+    ``folder / INDEX_FILE``. ``progress`` is told how many frames were added, block by block.
+
+    ``threads`` above 1 builds faster but not the same graph twice: maps are built with one (a
+    benchmark's index, whose bytes do not matter, may take more)."""
+    faiss = _faiss(threads)
     n, dim = descriptors.shape
     if kind == "lost":
         index = faiss.IndexHNSWSQ(dim, faiss.ScalarQuantizer.QT_8bit, NEIGHBOURS, faiss.METRIC_INNER_PRODUCT)
@@ -85,6 +88,7 @@ def build_index(descriptors: np.ndarray, kind: "MapKind", folder: Path,
             progress(len(block))
     path = Path(folder) / INDEX_FILE
     faiss.write_index(index, str(path))
+    faiss.omp_set_num_threads(1)
     return IndexInfo(INDEX_FILE, path.stat().st_size, file_sha256(path), metric, NEIGHBOURS, BUILD_BREADTH)
 
 

@@ -163,9 +163,11 @@ class MapWriter:
         backbone: BackboneInfo | None = None,
         overwrite: bool = False,
         spool: Callable[[MapChunk], Path] | None = None,
+        index: bool = True,
     ) -> None:
         """``spool``: where full chunks go (it saves one and says where; a build's checkpoint); chunks stay
-        in memory without one."""
+        in memory without one. ``index``: build the approximate index (False: a map only ever searched
+        exactly, e.g. a benchmark's, whose search is timed apart; ``search.index = "on"`` refuses it)."""
         self.out = check_output_folder(out, "map folder")
         if self.out.exists() and not overwrite:
             raise MapError(f"{self.out} already exists; pass --overwrite to replace it")
@@ -176,6 +178,7 @@ class MapWriter:
         self.backbone = backbone
         self.overwrite = overwrite
         self.spool = spool
+        self.with_index = index
         self.n_labels = len(metadata.get("label_names") or ())
         self._chunks: list[MapChunk | Path] = []
         self._starts: list[int] = []
@@ -270,10 +273,12 @@ class MapWriter:
             files["positions"] = self._stream("positions", chunks, (n, 2), np.float64)
         if all(h["has_timestamps"] for h in heads):
             files["timestamps"] = self._stream("timestamps", chunks, (n,), np.float64)
-        descriptors = np.load(self._tmp / "descriptors.npy", mmap_mode="r")
-        index = build_index(descriptors, self.kind, self._tmp).to_dict()
-        del descriptors
-        self.nbytes = sum(entry["bytes"] for entry in files.values()) + index["bytes"]
+        index = None
+        if self.with_index:
+            descriptors = np.load(self._tmp / "descriptors.npy", mmap_mode="r")
+            index = build_index(descriptors, self.kind, self._tmp).to_dict()
+            del descriptors
+        self.nbytes = sum(entry["bytes"] for entry in files.values()) + (index["bytes"] if index else 0)
         metadata = dict(self.metadata)
         # The map's camera is what its frames declare, unless the caller says otherwise: a declared query
         # camera is read against it (which way the query views and drives the route).
