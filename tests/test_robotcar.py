@@ -76,6 +76,10 @@ def test_queries_are_normalised_causally(day_map, robotcar, mosaic):
 
 def test_map_is_small(day_map):
     per_frame = day_map.nbytes / day_map.n_frames
-    # The authors' released code keeps 10 MB of dense descriptors per reference frame.
-    assert per_frame < 50_000
-    assert 10e6 / per_frame > 200
+    # The authors' released code keeps 10 MB of dense descriptors per reference frame. The approximate index
+    # adds 1.6 kB a frame to a large map; on ten frames, with its fixed part (each dimension's quantisation
+    # range), 2.7 kB (measured: 51.7 kB a frame in all).
+    assert per_frame < 55_000
+    index = day_map.manifest["index"]["bytes"] / day_map.n_frames
+    assert 2_500 < index < 3_000
+    assert 10e6 / per_frame > 190
