@@ -8,14 +8,15 @@ place moving one map frame per step, so the sequence filter and tracker run as o
 
 Stages, per frame:
 
-- search: the matcher's search (``sequence.nearest`` map frames, ranked by exact distance) through
+- search: the matcher's search (its ``verify.top_k`` candidates, ranked by exact distance) through
   the index (faiss HNSW over 8-bit codes, as a map stores it) and exactly; the index's Recall@10
   against exact on the same queries.
 - verify: keypoint verification of the top ``verify.top_k`` on the real map (it reads only the k
   candidates' evidence, so the map's size does not change it).
 - costs, sequence, tracker: ``Localizer.step`` on a map of this size, its single-frame answers
-  standing in for the matcher's (costs looked up are the LoST distances of the sampled
-  descriptors).
+  standing in for the matcher's; the costs are the contrast-normalised LoST distances of the sampled
+  descriptors to every map frame (the sequence filter's costs are computed for the whole map, with or
+  without the index).
 
 "after the network" is descriptor + search + verify + costs + sequence + tracker; memory per map
 frame is the map's descriptors (float16), the index and the per-frame evidence of the real map.
@@ -41,7 +42,7 @@ from common import RESULTS, print_table, summary, time_call, write_json
 from lostx.core import Config, Frame, Localizer, ReferenceMap
 from lostx.core.calibration import Calibration
 from lostx.core.config import HeadingConfig, SearchConfig
-from lostx.core.costs import MapScores
+from lostx.core.scores import MapScores
 from lostx.core.index import ApproximateIndex, build_index
 from lostx.core.mapwriter import MapFrame, MapWriter
 from lostx.core.matcher import FrameMatch, MatchResult, PlaceMatcher
@@ -104,7 +105,7 @@ def lost_map(n: int, real: np.ndarray, folder: Path, rng: np.random.Generator, t
 
 def search_stage(refs: DescriptorMap, config: Config, rng: np.random.Generator, queries: int) -> dict:
     """The matcher's search through the index and exactly, and the index's Recall@10 on the same queries."""
-    count = max(config.sequence.nearest, config.verify.top_k)
+    count = config.verify.top_k
     indexed = CandidateSearch(refs, SearchConfig(index="on"))  # type: ignore[arg-type]
     exact = CandidateSearch(refs, SearchConfig(index="off"))  # type: ignore[arg-type]
     places = rng.integers(0, refs.n_frames, queries)
@@ -123,11 +124,11 @@ def search_stage(refs: DescriptorMap, config: Config, rng: np.random.Generator, 
 
 class SyntheticAnswers:
     """Stands in for the matcher: the query at step t is map frame t plus noise; its map scores are its
-    exact LoST distances, looked up as the sequence filter asks; its nearest frames those around its place
-    and the rest of a shortlist drawn from the map (the search itself is timed apart)."""
+    exact LoST distances; its candidates the nearest of the frames around its place and a shortlist drawn
+    from the map (the search itself is timed apart)."""
 
-    def __init__(self, refs: DescriptorMap, nearest: int, rng: np.random.Generator) -> None:
-        self.refs, self.nearest, self.rng, self.t = refs, nearest, rng, 0
+    def __init__(self, refs: DescriptorMap, shortlist: int, rng: np.random.Generator) -> None:
+        self.refs, self.shortlist, self.rng, self.t = refs, shortlist, rng, 0
         self.last_evidence = None
 
     def match(self, image: np.ndarray, camera: str | None = None) -> FrameMatch:
@@ -136,13 +137,14 @@ class SyntheticAnswers:
         self.t += 1
         query = sampled(self.refs.descriptors, np.array([place]), self.rng)[0]
         near = np.unique(np.concatenate([np.clip(np.arange(place - 5, place + 6), 0, n - 1),
-                                         self.rng.integers(0, n, self.nearest)]))
+                                         self.rng.integers(0, n, self.shortlist)]))
         distances = cosine_distances(query, self.refs.descriptor_rows(near))
-        order = np.argsort(distances, kind="stable")[: self.nearest]
-        scores = MapScores(lambda rows: cosine_distances(query, self.refs.descriptor_rows(rows)), n)
-        top = near[order[:10]]
-        return FrameMatch.either(MatchResult(top, distances[order[:10]], distances[order[:10]], 1.0,
-                                             map_scores=scores, nearest=near[order],
+        order = np.argsort(distances, kind="stable")[:10]
+        scores = MapScores(lambda rows: cosine_distances(
+            query, self.refs.descriptors if rows is None else self.refs.descriptor_rows(rows)), n)
+        top = near[order]
+        return FrameMatch.either(MatchResult(top, distances[order], distances[order], 1.0,
+                                             map_scores=scores,
                                              timings={"network": 0.0, "descriptor": 0.0, "search": 0.0,
                                                       "verify": 0.0}))
 
@@ -171,7 +173,7 @@ def step_stages(refmap: ReferenceMap, refs: DescriptorMap, steps: int, one_direc
     heading = HeadingConfig(declared_prior=1.0) if one_direction else HeadingConfig()
     config = Config(search=search, heading=heading)
     localizer = Localizer(refmap, config, calibration=SURE)
-    localizer.matcher = SyntheticAnswers(refs, config.sequence.nearest, np.random.default_rng(refs.n_frames))  # type: ignore[assignment]
+    localizer.matcher = SyntheticAnswers(refs, 200, np.random.default_rng(refs.n_frames))  # type: ignore[assignment]
     # Declared and trusted, the heading is known and so is the direction of travel: one sign searched.
     frame = Frame(0, np.zeros((32, 64, 3), dtype=np.uint8), camera="front" if one_direction else None)
     stages: dict[str, list[float]] = {"costs": [], "sequence": [], "tracker": []}

@@ -148,11 +148,7 @@ class SequenceConfig:
     """Slopes searched without a track (OpenSeqSLAM's range), each with both signs: a stopped or slow
     vehicle is only plausible once the tracker has seen it slow down."""
     anchors: int = 20
-    """Trajectories are anchored at each frame's verified candidates and its this many lowest costs among the
-    references looked up: where the live trajectories pass and around the ``nearest`` map frames of its search."""
-    nearest: int = 200
-    """Map frames nearest to a frame's descriptor around which (each with its ``contrast_window``
-    neighbourhood) the filter looks for that frame's anchors."""
+    """Trajectories are anchored at each frame's verified candidates and its this many lowest-cost references."""
     radius: int = 0
     """A trajectory takes a frame's lowest cost within this many reference frames of its line."""
     contrast_window: int = 10
@@ -333,7 +329,7 @@ LIMITS: dict[str, dict[str, Bounds]] = {
     "camera": {"hfov_deg": Bounds(0, 180, above=True), "view_hfov_deg": Bounds(0, 180, above=True),
                "ignore_top": Bounds(0, 0.9), "ignore_bottom": Bounds(0, 0.9)},
     "sequence": {
-        "length": _AT_LEAST_1, "speeds": _AT_LEAST_0, "acquire_speeds": _ABOVE_0, "anchors": _AT_LEAST_0, "nearest": _AT_LEAST_0,
+        "length": _AT_LEAST_1, "speeds": _AT_LEAST_0, "acquire_speeds": _ABOVE_0, "anchors": _AT_LEAST_0,
         "radius": _AT_LEAST_0, "contrast_window": Bounds(2), "reference_prior": _AT_LEAST_0,
         "penalty": Bounds(), "exclusion": _AT_LEAST_0,
     },

@@ -4,9 +4,8 @@
 
 1. the single-frame match (:class:`PlaceMatcher`: describe, search, verify);
 2. the sequence filter (:class:`SequenceFilter`) over the last L frames, fed
-   with the frame's candidates, the nearest map frames of its search and its
-   scores, from which it computes contrast-normalised costs where it looks;
-   its best trajectory gives the position and speed;
+   with the frame's candidates and its contrast-normalised cost for every
+   reference; its best trajectory gives the position and speed;
 3. the route tracker (:class:`RouteTracker`, a Kalman filter), which gates
    implausible jumps, narrows the speeds searched next, and restarts after a
    genuine jump.
@@ -58,8 +57,8 @@ from .images import check_frame
 from .inputcheck import InputCheck
 from .matcher import FrameMatch, MatchResult, PlaceMatcher
 from .refmap import ReferenceMap
-from .costs import LookedUpCosts
-from .sequence import SequenceFilter, signed
+from .search import top_k
+from .sequence import ReferenceNormaliser, SequenceFilter, contrast_normalise, signed
 from .tracker import RouteTracker
 from .verify import verify
 
@@ -90,9 +89,8 @@ class Localizer:
                 refmap.store_calibration(calibration)
         self.calibration = calibration
         seq = self.config.sequence
-        self.costs = LookedUpCosts(refmap.n_frames, seq.contrast_window, seq.reference_prior)
-        self.sequence = SequenceFilter(seq.length, tuple(signed(seq.speeds, stopped=True)), seq.radius, seq.penalty,
-                                       self.costs, seq.anchors, seq.contrast_window // 2)
+        self.sequence = SequenceFilter(seq.length, tuple(signed(seq.speeds, stopped=True)), seq.radius, seq.penalty)
+        self.hubs = ReferenceNormaliser(seq.reference_prior)
         self.tracker = RouteTracker(self.config.tracker)
         self.heading = HeadingFilter(self.config.heading)
         self._last_timestamp: float | None = None
@@ -101,6 +99,7 @@ class Localizer:
         """Forget everything seen so far (start of a new traverse)."""
         self.matcher.reset()
         self.sequence.reset()
+        self.hubs.reset()
         self.tracker.reset()
         self.heading.reset()
         self._last_timestamp = None
@@ -161,15 +160,16 @@ class Localizer:
                            direction: int) -> Estimate:
         cfg = self.config.sequence
         t0 = time.perf_counter()
-        costs_before = self.costs.seconds
+        costs = self.hubs(contrast_normalise(result.map_scores.every(), cfg.contrast_window))
+        anchors = np.union1d(result.candidates, top_k(costs, cfg.anchors))
+        t_costs = time.perf_counter()
         speeds = self._plausible_speeds(direction)
         if direction:
             self.sequence.keep_direction(direction)
-        seq = self.sequence.update(result.map_scores, result.candidates, result.nearest, speeds)
+        seq = self.sequence.update(anchors, costs, speeds)
         runner_up = self.sequence.runner_up(seq.position, cfg.exclusion)
         margin = max(0.0, runner_up - seq.score) if np.isfinite(runner_up) else np.inf
         t1 = time.perf_counter()
-        t_costs = t0 + (self.costs.seconds - costs_before)  # the look-ups' share of the update
         warming = seq.frames < cfg.length
         confidence = 0.0 if warming else self.calibration.sequence_confidence(margin)
         confident = self._confident(confidence, heading_sure)

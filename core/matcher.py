@@ -20,7 +20,7 @@ from .images import check_frame
 from .keypoints import KeypointEvidence
 from .lost import RunningStandardiser
 from .refmap import ReferenceMap
-from .costs import MapScores
+from .scores import MapScores
 from .search import CandidateSearch
 from .thumbnail import ThumbnailDescriber
 from .verify import Correspondences, Verification, verify
@@ -73,9 +73,6 @@ class MatchResult:
     """The single-frame score of any reference frame, computed when the sequence filter asks: the
     descriptor distance for thumbnails; for LoST-X the verification score of the verified candidates
     and, elsewhere, the descriptor distance times the candidates' median ratio of score to distance."""
-    nearest: np.ndarray | None = None
-    """The search's nearest reference frames (``sequence.nearest`` of them, or ``verify.top_k`` if more),
-    nearest first: where the sequence filter looks for its anchors."""
     heading: Heading = "same"
     """The heading hypothesis these scores were computed under (the query's x mirrored for ``opposite``)."""
 
@@ -211,24 +208,18 @@ class PlaceMatcher:
         # The opposite hypothesis compares the flipped thumbnail: left and right swap between the views.
         return self._thumbnail_match({"same": self.describer(image), "opposite": self.describer(image[:, ::-1])}, t0)
 
-    @property
-    def _nearest_count(self) -> int:
-        return max(self.config.verify.top_k, self.config.sequence.nearest)
-
     def _thumbnail_match(self, queries: dict[str, np.ndarray], t0: float, removed: slice | None = None) -> FrameMatch:
         t1 = time.perf_counter()
         k = self.config.verify.top_k
         results = {}
         for heading, query in queries.items():
-            nearest, distances = self.search.nearest(query, self._nearest_count, removed)
-            order, ranked = nearest[:k], distances[:k]
+            order, ranked = self.search.nearest(query, k, removed)
             results[heading] = MatchResult(
                 candidates=order,
                 distances=ranked,
                 scores=ranked,
                 confidence=uniqueness(order, ranked, self.config.verify.uniqueness_exclusion),
                 map_scores=without(MapScores(partial(self.search.distances, query), self.map.n_frames), removed),
-                nearest=nearest,
                 heading=heading,  # type: ignore[arg-type]
             )
         timings = {"network": 0.0, "descriptor": t1 - t0, "search": time.perf_counter() - t1, "verify": 0.0}
@@ -265,8 +256,7 @@ class PlaceMatcher:
     def _search_and_verify(self, vector: np.ndarray, evidence: KeypointEvidence, labels: np.ndarray,
                            timings: dict[str, float], t0: float, removed: slice | None = None) -> FrameMatch:
         cfg = self.config.verify
-        nearest, near = self.search.nearest(vector, self._nearest_count, removed)
-        shortlist, distances = nearest[: cfg.top_k], near[: cfg.top_k]
+        shortlist, distances = self.search.nearest(vector, cfg.top_k, removed)
         distance_of = partial(self.search.distances, vector)
         t1 = time.perf_counter()
         timings.update({"search": t1 - t0, "verify": 0.0})
@@ -274,7 +264,7 @@ class PlaceMatcher:
             return FrameMatch.either(MatchResult(
                 shortlist, distances, distances, uniqueness(shortlist, distances, cfg.uniqueness_exclusion),
                 query_labels=labels, timings=timings,
-                map_scores=without(MapScores(distance_of, self.map.n_frames), removed), nearest=nearest))
+                map_scores=without(MapScores(distance_of, self.map.n_frames), removed)))
         result = verify(
             evidence,
             self.map.evidence(shortlist),
@@ -300,7 +290,6 @@ class PlaceMatcher:
                 timings=timings,
                 map_scores=map_scores(distance_of, self.map.n_frames, shortlist, distances, scores, cfg.scoring,
                                       removed),
-                nearest=nearest,
                 heading=heading,  # type: ignore[arg-type]
             )
         return FrameMatch(answers["same"], answers["opposite"], heading_vote(result.scores, result.mirror_scores))
@@ -326,7 +315,7 @@ def without(scores: MapScores, removed: slice | None) -> MapScores:
     return dataclasses.replace(scores, removed=removed, removed_score=worst)
 
 
-def map_scores(distance_of: Callable[[np.ndarray], np.ndarray], n_frames: int, shortlist: np.ndarray,
+def map_scores(distance_of: Callable[[np.ndarray | None], np.ndarray], n_frames: int, shortlist: np.ndarray,
                distances: np.ndarray, verified: np.ndarray, scoring: str, removed: slice | None = None) -> MapScores:
     """Extend the verified scores of the shortlist to every reference frame.
 

@@ -34,7 +34,7 @@ from tqdm import tqdm
 from lostx.core.backbones import Backbone, load_backbone
 from lostx.core.build import build_map
 from lostx.core.config import Config
-from lostx.core.costs import MapScores
+from lostx.core.scores import MapScores
 from lostx.core.describe import LostDescriber
 from lostx.core.errors import InputError, MapError
 from lostx.core.frame import Frame
@@ -200,12 +200,11 @@ def appearance_result(query: np.ndarray, refs: np.ndarray, config: Config) -> Fr
     """Single-frame answer of the appearance baseline: cosine distance of GeM descriptors (pooled, so
     it cannot tell the headings apart)."""
     distances = cosine_distances(query, refs)
-    nearest = top_k(distances, max(config.verify.top_k, config.sequence.anchors))
-    order = nearest[: config.verify.top_k]
+    order = top_k(distances, config.verify.top_k)
     ranked = distances[order]
     return FrameMatch.either(MatchResult(order, ranked, ranked,
                                          uniqueness(order, ranked, config.verify.uniqueness_exclusion),
-                                         map_scores=MapScores.of_array(distances), nearest=nearest, timings={}))
+                                         map_scores=MapScores.of_array(distances), timings={}))
 
 
 def single_results(method: str, pair: DatasetPair, maps: dict[str, ReferenceMap], config: Config,

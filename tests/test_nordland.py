@@ -29,8 +29,8 @@ MODES = {
 # (tolerance in frames) -> (recall at 100 % precision, max F1, Recall@1), measured with the defaults.
 MEASURED = {
     "single": {0: (0.003, 0.073, 0.045), 1: (0.004, 0.076, 0.047), 2: (0.004, 0.079, 0.049)},
-    "sequence": {0: (0.0, 0.876, 0.834), 1: (0.622, 0.89, 0.85), 2: (0.733, 0.898, 0.859)},
-    "sequence+tracker": {0: (0.0, 0.878, 0.862), 1: (0.631, 0.893, 0.888), 2: (0.734, 0.904, 0.904)},
+    "sequence": {0: (0.0, 0.865, 0.823), 1: (0.596, 0.877, 0.835), 2: (0.694, 0.884, 0.843)},
+    "sequence+tracker": {0: (0.0, 0.871, 0.862), 1: (0.644, 0.883, 0.882), 2: (0.7, 0.896, 0.896)},
 }
 
 @pytest.fixture(scope="module")
@@ -76,7 +76,7 @@ def test_localized_answers_are_right(runs):
         localized = [e for e in estimates if e.state == "localized"]
         wrong = [e for e in localized if abs(e.match_index - e.frame_id) > 1]
         assert wrong == []
-        # Measured: 2225 (sequence) and 2257 (with the tracker) of 3576, never below the 56.5 % a fixed
+        # Measured: 2041 (sequence) and 2069 (with the tracker) of 3576, never below the 56.5 % a fixed
         # threshold tuned on this data reached.
         assert len(localized) >= 0.565 * len(estimates)
 
@@ -115,10 +115,7 @@ def test_leaving_the_map(gap_run):
     # Measured: not localized for all 200 frames of the stretch, no confident answer there at all.
     assert not localized[inside].any()
     assert max(e.confidence for e, i in zip(estimates, inside) if i) < Config().decision.min_confidence
-    # ... and localized again 15 frames after the stretch (the window is 20 frames long), correctly.
+    # ... and localized again 16 frames after the stretch (the window is 20 frames long), correctly.
     after = np.flatnonzero(~inside & (queries >= GAP[1]) & localized)
-    assert after[0] - np.flatnonzero(queries == GAP[1])[0] == 15
-    # Measured: every localized answer within one frame but one, 1342 for the winter query 1344 (confidence
-    # 0.9993), on the route before the stretch; with costs for every map frame none was.
-    off = np.abs(pred - truth)[localized]
-    assert (off <= 2).all() and queries[localized][off > 1].tolist() == [1344]
+    assert after[0] - np.flatnonzero(queries == GAP[1])[0] == 16
+    assert (np.abs(pred - truth)[localized] <= 1).all()
