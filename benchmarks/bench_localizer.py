@@ -13,12 +13,12 @@ Stages, per frame:
   against exact on the same queries.
 - verify: keypoint verification of the top ``verify.top_k`` on the real map (it reads only the k
   candidates' evidence, so the map's size does not change it).
-- costs, sequence, tracker: ``Localizer.step`` on a map of this size, its single-frame answers
-  standing in for the matcher's; the costs are the contrast-normalised LoST distances of the sampled
-  descriptors to every map frame (the sequence filter's costs are computed for the whole map, with or
-  without the index).
+- costs, sequence, tracker: ``Localizer.step`` on a map of this size, searching as the matcher does
+  (index or exact) and scoring with the LoST distances of the sampled descriptors; the costs are
+  normalised for every map frame, so they need the query's distance to every map frame (shared with
+  an exact search, computed apart after an index search).
 
-"after the network" is descriptor + search + verify + costs + sequence + tracker; memory per map
+"after the network" is descriptor + verify + the step's search, costs, sequence and tracker; memory per map
 frame is the map's descriptors (float16), the index and the per-frame evidence of the real map.
 
     python benchmarks/bench_localizer.py [--sizes 1000 10000 100000 1000000] [--steps 200] [--real MAP]
@@ -47,7 +47,7 @@ from lostx.core.index import ApproximateIndex, build_index
 from lostx.core.mapwriter import MapFrame, MapWriter
 from lostx.core.matcher import FrameMatch, MatchResult, PlaceMatcher
 from lostx.core.paths import data_dir
-from lostx.core.search import CandidateSearch, cosine_distances
+from lostx.core.search import CandidateSearch, QueryDistances
 
 NOISE = 0.5
 """Noise per dimension, relative to a unit descriptor's typical component (1 / sqrt(K))."""
@@ -123,28 +123,26 @@ def search_stage(refs: DescriptorMap, config: Config, rng: np.random.Generator, 
 
 
 class SyntheticAnswers:
-    """Stands in for the matcher: the query at step t is map frame t plus noise; its map scores are its
-    exact LoST distances; its candidates the nearest of the frames around its place and a shortlist drawn
-    from the map (the search itself is timed apart)."""
+    """Stands in for the matcher: the query at step t is map frame t plus noise; it is searched as the
+    matcher searches (through the index or exactly), and its map scores are its exact LoST distances,
+    sharing what the search computed (an exact search's distances to every map frame)."""
 
-    def __init__(self, refs: DescriptorMap, shortlist: int, rng: np.random.Generator) -> None:
-        self.refs, self.shortlist, self.rng, self.t = refs, shortlist, rng, 0
+    def __init__(self, search: CandidateSearch, rng: np.random.Generator) -> None:
+        self.search, self.rng, self.t = search, rng, 0
+        self.search_ms: list[float] = []
         self.last_evidence = None
 
     def match(self, image: np.ndarray, camera: str | None = None) -> FrameMatch:
-        n = self.refs.n_frames
+        refs = self.search.map
+        n = refs.n_frames
         place = self.t % n
         self.t += 1
-        query = sampled(self.refs.descriptors, np.array([place]), self.rng)[0]
-        near = np.unique(np.concatenate([np.clip(np.arange(place - 5, place + 6), 0, n - 1),
-                                         self.rng.integers(0, n, self.shortlist)]))
-        distances = cosine_distances(query, self.refs.descriptor_rows(near))
-        order = np.argsort(distances, kind="stable")[:10]
-        scores = MapScores(lambda rows: cosine_distances(
-            query, self.refs.descriptors if rows is None else self.refs.descriptor_rows(rows)), n)
-        top = near[order]
-        return FrameMatch.either(MatchResult(top, distances[order], distances[order], 1.0,
-                                             map_scores=scores,
+        query = sampled(refs.descriptors, np.array([place]), self.rng)[0]
+        start = time.perf_counter()
+        distances = QueryDistances(self.search, query)
+        top, near = self.search.nearest(query, 10, None, distances)
+        self.search_ms.append(1e3 * (time.perf_counter() - start))
+        return FrameMatch.either(MatchResult(top, near, near, 1.0, map_scores=MapScores(distances, n),
                                              timings={"network": 0.0, "descriptor": 0.0, "search": 0.0,
                                                       "verify": 0.0}))
 
@@ -168,12 +166,14 @@ def stub_map(out: Path, n: int) -> ReferenceMap:
     return ReferenceMap.open(out)
 
 
-def step_stages(refmap: ReferenceMap, refs: DescriptorMap, steps: int, one_direction: bool) -> dict[str, list[float]]:
-    search = SearchConfig(index="off")
+def step_stages(refmap: ReferenceMap, refs: DescriptorMap, steps: int, one_direction: bool,
+                index: bool) -> dict[str, list[float]]:
     heading = HeadingConfig(declared_prior=1.0) if one_direction else HeadingConfig()
-    config = Config(search=search, heading=heading)
+    config = Config(heading=heading)
     localizer = Localizer(refmap, config, calibration=SURE)
-    localizer.matcher = SyntheticAnswers(refs, 200, np.random.default_rng(refs.n_frames))  # type: ignore[assignment]
+    answers = SyntheticAnswers(CandidateSearch(refs, SearchConfig(index="on" if index else "off")),  # type: ignore[arg-type]
+                               np.random.default_rng(refs.n_frames))
+    localizer.matcher = answers  # type: ignore[assignment]
     # Declared and trusted, the heading is known and so is the direction of travel: one sign searched.
     frame = Frame(0, np.zeros((32, 64, 3), dtype=np.uint8), camera="front" if one_direction else None)
     stages: dict[str, list[float]] = {"costs": [], "sequence": [], "tracker": []}
@@ -181,6 +181,7 @@ def step_stages(refmap: ReferenceMap, refs: DescriptorMap, steps: int, one_direc
         estimate = localizer.step(frame)
         for k in stages:
             stages[k].append(estimate.latency_ms[k])
+    stages["search"] = answers.search_ms
     stages["state"] = [estimate.state == "localized"]  # type: ignore[list-item]
     return stages
 
@@ -210,8 +211,9 @@ def run_size(n: int, real: np.ndarray, steps: int, queries: int, threads: int) -
         refs, built = lost_map(n, real, Path(tmp), rng, threads)
         search = search_stage(refs, Config(), rng, queries)
         refmap = stub_map(Path(tmp) / "map", n)
-        one = step_stages(refmap, refs, steps, one_direction=True)
-        both = step_stages(refmap, refs, steps, one_direction=False)
+        one = step_stages(refmap, refs, steps, one_direction=True, index=True)
+        both = step_stages(refmap, refs, steps, one_direction=False, index=True)
+        exact = step_stages(refmap, refs, max(10, steps // 4), one_direction=False, index=False)
     return {
         "map_frames": n,
         **built,
@@ -221,8 +223,11 @@ def run_size(n: int, real: np.ndarray, steps: int, queries: int, threads: int) -
         "exact_over_index": search["exact"]["median_ms"] / search["index"]["median_ms"],
         "recall_at_10": search["recall_at_10"],
         "costs": summary(both["costs"]),
+        "costs_after_exact_search": summary(exact["costs"]),
         "sequence": summary(both["sequence"]),
         "sequence_one_direction": summary(one["sequence"]),
+        "step_index": summary([sum(v) for v in zip(*(both[k] for k in ("search", "costs", "sequence", "tracker")))]),
+        "step_exact": summary([sum(v) for v in zip(*(exact[k] for k in ("search", "costs", "sequence", "tracker")))]),
         "tracker": summary(both["tracker"]),
         "localized_at_end": bool(both["state"][0]),
     }
@@ -247,20 +252,20 @@ def main() -> None:
     fixed_ms = fixed["descriptor"]["median_ms"] + fixed["verify"]["median_ms"]
     rows = []
     for r in results:
-        rest = r["costs"]["median_ms"] + r["sequence"]["median_ms"] + r["tracker"]["median_ms"]
-        r["after_network_index_ms"] = fixed_ms + r["search_index"]["median_ms"] + rest
-        r["after_network_exact_ms"] = fixed_ms + r["search_exact"]["median_ms"] + rest
+        r["after_network_index_ms"] = fixed_ms + r["step_index"]["median_ms"]
+        r["after_network_exact_ms"] = fixed_ms + r["step_exact"]["median_ms"]
         r["bytes_per_frame"] = 2 * vectors.shape[1] + r["index_bytes_per_frame"] + per_frame_evidence
         rows.append([r["map_frames"], r["search_index"]["median_ms"], r["search_exact"]["median_ms"],
-                     r["exact_over_index"], r["recall_at_10"], r["costs"]["median_ms"], r["sequence"]["median_ms"],
+                     r["exact_over_index"], r["recall_at_10"], r["costs"]["median_ms"],
+                     r["costs_after_exact_search"]["median_ms"], r["sequence"]["median_ms"],
                      r["sequence"]["p90_ms"], r["tracker"]["median_ms"], r["after_network_index_ms"],
                      r["after_network_exact_ms"], r["bytes_per_frame"] / 1e3])
     print(f"\ndescriptor {fixed['descriptor']['median_ms']:.3g} ms, verify {fixed['verify']['median_ms']:.3g} ms "
           f"(median, real Nordland map and queries; independent of the map's size)")
     print_table("Everything after the network, per frame (median ms; sequence p90 too)",
                 ["map frames", "search (index)", "search (exact)", "exact / index", "index Recall@10", "costs",
-                 "sequence", "sequence p90", "tracker", "after network (index)", "after network (exact)",
-                 "kB per map frame"], rows)
+                 "costs (exact search)", "sequence", "sequence p90", "tracker", "after network (index)",
+                 "after network (exact)", "kB per map frame"], rows)
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6
     write_json(args.out, {"benchmark": "localizer", "real_map": str(args.real), "noise": NOISE,
                           "fixed_stages": fixed, "evidence_bytes_per_frame": per_frame_evidence,

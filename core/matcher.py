@@ -5,7 +5,6 @@ from __future__ import annotations
 import dataclasses
 import time
 from dataclasses import dataclass, field
-from functools import partial
 from typing import Callable
 
 import numpy as np
@@ -21,7 +20,7 @@ from .keypoints import KeypointEvidence
 from .lost import RunningStandardiser
 from .refmap import ReferenceMap
 from .scores import MapScores
-from .search import CandidateSearch
+from .search import CandidateSearch, QueryDistances
 from .thumbnail import ThumbnailDescriber
 from .verify import Correspondences, Verification, verify
 
@@ -213,13 +212,14 @@ class PlaceMatcher:
         k = self.config.verify.top_k
         results = {}
         for heading, query in queries.items():
-            order, ranked = self.search.nearest(query, k, removed)
+            distance_of = QueryDistances(self.search, query)
+            order, ranked = self.search.nearest(query, k, removed, distance_of)
             results[heading] = MatchResult(
                 candidates=order,
                 distances=ranked,
                 scores=ranked,
                 confidence=uniqueness(order, ranked, self.config.verify.uniqueness_exclusion),
-                map_scores=without(MapScores(partial(self.search.distances, query), self.map.n_frames), removed),
+                map_scores=without(MapScores(distance_of, self.map.n_frames), removed),
                 heading=heading,  # type: ignore[arg-type]
             )
         timings = {"network": 0.0, "descriptor": t1 - t0, "search": time.perf_counter() - t1, "verify": 0.0}
@@ -256,8 +256,8 @@ class PlaceMatcher:
     def _search_and_verify(self, vector: np.ndarray, evidence: KeypointEvidence, labels: np.ndarray,
                            timings: dict[str, float], t0: float, removed: slice | None = None) -> FrameMatch:
         cfg = self.config.verify
-        shortlist, distances = self.search.nearest(vector, cfg.top_k, removed)
-        distance_of = partial(self.search.distances, vector)
+        distance_of = QueryDistances(self.search, vector)
+        shortlist, distances = self.search.nearest(vector, cfg.top_k, removed, distance_of)
         t1 = time.perf_counter()
         timings.update({"search": t1 - t0, "verify": 0.0})
         if not cfg.enabled:

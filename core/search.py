@@ -73,23 +73,27 @@ class CandidateSearch:
     def approximate(self) -> bool:
         return self.index is not None
 
-    def nearest(self, query: np.ndarray, k: int, removed: slice | None = None) -> tuple[np.ndarray, np.ndarray]:
+    def nearest(self, query: np.ndarray, k: int, removed: slice | None = None,
+                distances: "QueryDistances | None" = None) -> tuple[np.ndarray, np.ndarray]:
         """The k map frames nearest to ``query`` (those in ``removed`` left out), nearest first (ties to the
-        lower index), and their exact distances."""
+        lower index), and their exact distances. ``distances``: the query's distances to share with later
+        look-ups (an exact search computes the whole map's once for both)."""
+        distances = distances or QueryDistances(self, query)
         if self.index is None:
-            distances = self.distances(query)
+            every = distances()
             if removed is not None:
-                distances[removed] = np.inf
-                k = min(k, len(distances) - (removed.stop - removed.start))
-            found = top_k(distances, k)
-            return found, distances[found]
+                every = every.copy()
+                every[removed] = np.inf
+                k = min(k, len(every) - (removed.stop - removed.start))
+            found = top_k(every, k)
+            return found, every[found]
         fetch = max(k, self.config.index_shortlist) + (0 if removed is None else removed.stop - removed.start)
         found = self.index.search(query, fetch, max(self.config.index_breadth, fetch))
         if removed is not None:
             found = found[(found < removed.start) | (found >= removed.stop)]
-        distances = self.distances(query, found)
-        order = np.lexsort((found, distances))[:k]
-        return found[order], distances[order]
+        near = distances(found)
+        order = np.lexsort((found, near))[:k]
+        return found[order], near[order]
 
     def distances(self, query: np.ndarray, refs: np.ndarray | None = None) -> np.ndarray:
         """Exact distances of ``query`` to the map frames ``refs`` (every frame when None), float32 or float64."""
@@ -97,6 +101,22 @@ class CandidateSearch:
         if self.map.kind == "lost":
             return cosine_distances(np.asarray(query, dtype=np.float32), rows)
         return sad_distances(query, rows)
+
+
+class QueryDistances:
+    """Exact distances of one query to the map frames asked for (None: every one); the whole map's are
+    computed at most once, and then every later look-up reads them."""
+
+    def __init__(self, search: CandidateSearch, query: np.ndarray) -> None:
+        self.search, self.query = search, query
+        self._every: np.ndarray | None = None
+
+    def __call__(self, refs: np.ndarray | None = None) -> np.ndarray:
+        if self._every is None and refs is None:
+            self._every = self.search.distances(self.query)
+        if self._every is not None:
+            return self._every if refs is None else self._every[refs]
+        return self.search.distances(self.query, refs)
 
 
 def uses_index(config: SearchConfig, n_frames: int) -> bool:
