@@ -169,7 +169,8 @@ def stub_map(out: Path, n: int) -> ReferenceMap:
 def step_stages(refmap: ReferenceMap, refs: DescriptorMap, steps: int, one_direction: bool,
                 index: bool) -> dict[str, list[float]]:
     heading = HeadingConfig(declared_prior=1.0) if one_direction else HeadingConfig()
-    config = Config(heading=heading)
+    # The localizer's own matcher (on a stub map without an index) is replaced before it searches anything.
+    config = Config(heading=heading, search=SearchConfig(index="off"))
     localizer = Localizer(refmap, config, calibration=SURE)
     answers = SyntheticAnswers(CandidateSearch(refs, SearchConfig(index="on" if index else "off")),  # type: ignore[arg-type]
                                np.random.default_rng(refs.n_frames))
