@@ -50,7 +50,9 @@ shoot() {
 shoot robotcar "$work/robotcar-day.map" "$data/robotcar-daynight/night" --sequence --window 3
 
 scene=$data/nuscenes-frontrear/scene-0523
-# The paper's setup: the map from the rear camera, the front camera's frames as queries.
-"${lostx[@]}" map build "$scene/rear" --camera rear --positions "$scene/rear/positions_lookat15m.csv" \
-  --out "$work/nuscenes-rear.map" --quiet
-shoot nuscenes "$work/nuscenes-rear.map" "$scene/front" --opposite --sequence
+# The paper's setup: the map from the rear camera, the front camera's frames as queries. The
+# folders are read as nuScenes (the tables lie above them), which takes no positions file:
+# --look-at 15 gives the points 15 m along the camera's axis (positions_lookat15m.csv), on
+# both sides so that the map's true position of a query is comparable with its answer's.
+"${lostx[@]}" map build "$scene/rear" --camera rear --look-at 15 --out "$work/nuscenes-rear.map" --quiet
+shoot nuscenes "$work/nuscenes-rear.map" "$scene/front" --look-at 15 --opposite --sequence
