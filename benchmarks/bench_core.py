@@ -21,12 +21,11 @@ from pathlib import Path
 import numpy as np
 
 from common import RESULTS, print_table, summary, time_call, write_json
-from lostx.core import Config, Frame, Localizer, LostDescriber, PlaceMatcher, ReferenceMap, load_backbone
+from lostx.core import Config, Frame, Localizer, LostDescriber, ReferenceMap, load_backbone
 from lostx.core.keypoints import KeypointEvidence, frame_evidence
 from lostx.core.lost import class_means, lost_descriptor
 from lostx.core.paths import data_dir
 from lostx.core.mapwriter import MapFrame, MapWriter
-from lostx.core.search import cosine_distances, top_k
 from lostx.core.verify import score_pairs, verify
 from lostx.replay.folder import folder_traverse
 
@@ -106,8 +105,6 @@ def paper_shaped(repeat: int) -> tuple[list[list], dict]:
 
     query_f, query_p, query_l = tensor()
     flat = query_f.reshape(d, -1)
-    means, _ = class_means(flat, query_l, 3)
-    descriptor = lost_descriptor(flat, query_p[:3], means)
     desc_ms = time_call(lambda: lost_descriptor(flat, query_p[:3], class_means(flat, query_l, 3)[0]), repeat)
     kp_ms = time_call(lambda: frame_evidence(query_f, query_l.reshape(h, w)), repeat)
     query = frame_evidence(query_f, query_l.reshape(h, w))

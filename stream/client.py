@@ -29,7 +29,7 @@ from . import protocol as wire
 from .errors import ProtocolError, StreamError
 from .history import HistoryClient
 from .protocol import Limits, Published, Result, Stats, Tag
-from .sockets import ClientKeys, apply_client_keys, connect, history_endpoint
+from .sockets import ClientKeys, connect, history_endpoint
 
 LISTENER_LIMITS = Limits(max_message_bytes=1024 * 1024)
 """Result, error and stats messages are small (a few kB); anything over 1 MiB is refused unread."""
@@ -100,11 +100,9 @@ class Listener:
         self._socket.setsockopt(zmq.MAXMSGSIZE, limits.max_message_bytes)
         self._socket.setsockopt(zmq.LINGER, 0)
         try:
-            if keys is not None:
-                apply_client_keys(self._socket, keys)
             for topic in sorted(subscribed):
                 self._socket.setsockopt(zmq.SUBSCRIBE, topic.encode())
-            connect(self._socket, endpoint)
+            connect(self._socket, endpoint, keys)
         except BaseException:
             self.close()
             raise

@@ -17,7 +17,7 @@ import zmq
 from . import protocol as wire
 from .errors import ProtocolError, StreamError
 from .protocol import Fetch, History, Limits
-from .sockets import ClientKeys, apply_client_keys, connect
+from .sockets import ClientKeys, connect
 
 RETRY_S = 1.0
 """How long to wait for a reply before asking again."""
@@ -35,9 +35,7 @@ class HistoryClient:
         self._socket.setsockopt(zmq.LINGER, 0)
         self._socket.setsockopt(zmq.MAXMSGSIZE, REPLY_LIMITS.max_message_bytes)
         try:
-            if keys is not None:
-                apply_client_keys(self._socket, keys)
-            connect(self._socket, endpoint)
+            connect(self._socket, endpoint, keys)
         except BaseException:
             self.close()
             raise

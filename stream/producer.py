@@ -29,7 +29,7 @@ from lostx.core.frame import Frame
 from . import protocol as wire
 from .errors import ProtocolError, StreamError
 from .protocol import Ack, ErrorMessage, Limits, Ready
-from .sockets import ClientKeys, apply_client_keys, connect
+from .sockets import ClientKeys, connect
 
 HELLO_RETRY_S = 0.5
 """How often a producer waiting for the service says hello again."""
@@ -91,9 +91,7 @@ class FramePublisher:
         # Connection events tell a reconnection (frames in flight on the old connection are lost).
         self._monitor = self._socket.get_monitor_socket(zmq.EVENT_HANDSHAKE_SUCCEEDED)
         try:
-            if keys is not None:
-                apply_client_keys(self._socket, keys)
-            connect(self._socket, endpoint)
+            connect(self._socket, endpoint, keys)
         except BaseException:
             self.close()
             raise

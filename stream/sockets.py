@@ -170,10 +170,14 @@ def bind(socket: zmq.Socket, endpoint: str) -> str:
     return socket.getsockopt_string(zmq.LAST_ENDPOINT)
 
 
-def connect(socket: zmq.Socket, endpoint: str) -> None:
+def connect(socket: zmq.Socket, endpoint: str, keys: ClientKeys | None = None) -> None:
+    """Connect with keep-alive and reconnection settings; with ``keys``, as a CurveZMQ client (the keys
+    must be on the socket before it connects)."""
     transport = endpoint.partition("://")[0]
     if transport not in ("tcp", "ipc", "inproc"):
         raise StreamError(f"cannot connect to {endpoint}: use tcp://HOST:PORT, ipc://PATH or inproc://NAME")
+    if keys is not None:
+        apply_client_keys(socket, keys)
     keep_alive(socket)
     socket.setsockopt(zmq.RECONNECT_IVL, RECONNECT_IVL_MS)
     socket.setsockopt(zmq.RECONNECT_IVL_MAX, RECONNECT_IVL_MAX_MS)
