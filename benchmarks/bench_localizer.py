@@ -3,8 +3,14 @@ approximate index and with exact search, side by side in one run.
 
 The map descriptors are LoST descriptors sampled around real ones: each is a real map frame's
 normalised descriptor (``--real``, by default a LoST map of the Nordland summer frames, built once)
-plus Gaussian noise, renormalised. The queries are map frames plus as much noise again, their true
-place moving one map frame per step, so the sequence filter and tracker run as on a real traverse.
+plus Gaussian noise, renormalised. A map is a chain of stretches of ``STRETCH`` consecutive real frames,
+each starting at a random frame of the real route, so that neighbouring map frames look alike as on a
+real traverse (what contrast normalisation and the sequence filter work on). Each stretch has its
+descriptors' components in an order of its own, so that the stretches are different places, as the
+streets of a city are, rather than copies of the same 3,576 (``--repeat-places`` keeps the copies: every
+place then has about map size / 3,576 look-alikes, a worst case in which the filter never settles). The queries are map frames
+plus as much noise again, their true place moving one map frame per step, so the sequence filter and
+tracker run as on a real traverse.
 
 Stages, per frame:
 
@@ -14,14 +20,17 @@ Stages, per frame:
 - verify: keypoint verification of the top ``verify.top_k`` on the real map (it reads only the k
   candidates' evidence, so the map's size does not change it).
 - costs, sequence, tracker: ``Localizer.step`` on a map of this size, searching as the matcher does
-  (index or exact) and scoring with the LoST distances of the sampled descriptors; the costs are
-  normalised for every map frame, so they need the query's distance to every map frame (shared with
-  an exact search, computed apart after an index search).
+  (index or exact) and scoring with the LoST distances of the sampled descriptors. With the index the
+  costs are looked up where the sequence filter looks (``sequence.costs = "looked-up"``, as on a map of
+  ``costs_min_frames`` or more); with exact search they are computed for every map frame, sharing the
+  search's distances to every map frame. Both directions are searched (heading unknown, the tracker
+  never settles: the most look-ups), and, for the costs, one direction too (a declared camera: the
+  tracker follows the route).
 
 "after the network" is descriptor + verify + the step's search, costs, sequence and tracker; memory per map
 frame is the map's descriptors (float16), the index and the per-frame evidence of the real map.
 
-    python benchmarks/bench_localizer.py [--sizes 1000 10000 100000 1000000] [--steps 200] [--real MAP]
+    python benchmarks/bench_localizer.py [--sizes 1000 10000 100000 1000000] [--steps 200] [--real MAP] [--repeat-places]
 """
 
 from __future__ import annotations
@@ -41,7 +50,7 @@ import numpy as np
 from common import RESULTS, print_table, summary, time_call, write_json
 from lostx.core import Config, Frame, Localizer, ReferenceMap
 from lostx.core.calibration import Calibration
-from lostx.core.config import HeadingConfig, SearchConfig
+from lostx.core.config import HeadingConfig, SearchConfig, SequenceConfig
 from lostx.core.scores import MapScores
 from lostx.core.index import ApproximateIndex, build_index
 from lostx.core.mapwriter import MapFrame, MapWriter
@@ -51,7 +60,9 @@ from lostx.core.search import CandidateSearch, QueryDistances
 
 NOISE = 0.5
 """Noise per dimension, relative to a unit descriptor's typical component (1 / sqrt(K))."""
-BLOCK = 65536
+STRETCH = 1000
+"""Consecutive real frames in each stretch of a sampled map."""
+BLOCK = 64 * STRETCH
 DEFAULT_REAL = Path.home() / ".cache" / "lostx-bench" / "nordland-summer-lost"
 
 
@@ -75,9 +86,12 @@ def sampled(real: np.ndarray, rows: np.ndarray, rng: np.random.Generator) -> np.
 
 @dataclass
 class DescriptorMap:
-    """What :class:`CandidateSearch` reads of a map: its descriptors and its index."""
+    """What :class:`CandidateSearch` reads of a map: its descriptors and its index. As a map does, it
+    compares every frame with float32 descriptors in memory and reads single rows of the float16 ones it
+    stores (what a search through the index reads)."""
 
     descriptors: np.ndarray
+    stored: np.ndarray
     index: ApproximateIndex | None
     path: Path
     kind: str = "lost"
@@ -87,19 +101,34 @@ class DescriptorMap:
         return len(self.descriptors)
 
     def descriptor_rows(self, indices: np.ndarray) -> np.ndarray:
-        return self.descriptors[np.asarray(indices, dtype=np.int64)]
+        return np.asarray(self.stored[np.asarray(indices, dtype=np.int64)], dtype=np.float32)
 
 
-def lost_map(n: int, real: np.ndarray, folder: Path, rng: np.random.Generator, threads: int) -> tuple[DescriptorMap, dict]:
-    descriptors = np.empty((n, real.shape[1]), np.float32)
+def stretches(start: int, stop: int, n_real: int, rng: np.random.Generator) -> np.ndarray:
+    """Real frames for map frames [start, stop): runs of ``STRETCH`` consecutive ones from random starts."""
+    frames = np.arange(start, stop)
+    first = rng.integers(0, n_real, (stop - 1) // STRETCH - start // STRETCH + 1)
+    return (first[frames // STRETCH - start // STRETCH] + frames % STRETCH) % n_real
+
+
+def lost_map(n: int, real: np.ndarray, folder: Path, rng: np.random.Generator, threads: int,
+             repeat_places: bool = False) -> tuple[DescriptorMap, dict]:
+    stored = np.empty((n, real.shape[1]), np.float16)
     for start in range(0, n, BLOCK):
         stop = min(n, start + BLOCK)
-        descriptors[start:stop] = sampled(real, rng.integers(0, len(real), stop - start), rng)
+        block = sampled(real, stretches(start, stop, len(real), rng), rng)
+        if not repeat_places:
+            for first in range(start, stop, STRETCH):
+                rows = slice(first - start, min(stop, first + STRETCH) - start)
+                block[rows] = block[rows][:, rng.permutation(real.shape[1])]
+        stored[start:stop] = block
+    # As a map: float16 on disk, compared as float32 in memory when every frame is searched.
+    descriptors = stored.astype(np.float32)
     t0 = time.perf_counter()
-    info = build_index(descriptors.astype(np.float16), "lost", folder, threads=threads)
+    info = build_index(stored, "lost", folder, threads=threads)
     built = time.perf_counter() - t0
     index = ApproximateIndex(folder / info.file, n)
-    return DescriptorMap(descriptors, index, folder), {"index_bytes": info.bytes, "index_build_s": built,
+    return DescriptorMap(descriptors, stored, index, folder), {"index_bytes": info.bytes, "index_build_s": built,
                                                       "index_build_threads": threads}
 
 
@@ -127,8 +156,9 @@ class SyntheticAnswers:
     matcher searches (through the index or exactly), and its map scores are its exact LoST distances,
     sharing what the search computed (an exact search's distances to every map frame)."""
 
-    def __init__(self, search: CandidateSearch, rng: np.random.Generator) -> None:
-        self.search, self.rng, self.t = search, rng, 0
+    def __init__(self, search: CandidateSearch, rng: np.random.Generator, nearest: int) -> None:
+        """``nearest``: map frames the search returns (the seeds of a filter that looks its costs up)."""
+        self.search, self.rng, self.t, self.nearest = search, rng, 0, nearest
         self.search_ms: list[float] = []
         self.last_evidence = None
 
@@ -140,9 +170,10 @@ class SyntheticAnswers:
         query = sampled(refs.descriptors, np.array([place]), self.rng)[0]
         start = time.perf_counter()
         distances = QueryDistances(self.search, query)
-        top, near = self.search.nearest(query, 10, None, distances)
+        nearest, near = self.search.nearest(query, max(10, self.nearest), None, distances)
+        top, near = nearest[:10], near[:10]
         self.search_ms.append(1e3 * (time.perf_counter() - start))
-        return FrameMatch.either(MatchResult(top, near, near, 1.0, map_scores=MapScores(distances, n),
+        return FrameMatch.either(MatchResult(top, near, near, 1.0, map_scores=MapScores(distances, n), nearest=nearest,
                                              timings={"network": 0.0, "descriptor": 0.0, "search": 0.0,
                                                       "verify": 0.0}))
 
@@ -170,10 +201,12 @@ def step_stages(refmap: ReferenceMap, refs: DescriptorMap, steps: int, one_direc
                 index: bool) -> dict[str, list[float]]:
     heading = HeadingConfig(declared_prior=1.0) if one_direction else HeadingConfig()
     # The localizer's own matcher (on a stub map without an index) is replaced before it searches anything.
-    config = Config(heading=heading, search=SearchConfig(index="off"))
+    # With the index, as on a city-scale map, the costs are looked up; with exact search, computed for every frame.
+    config = Config(heading=heading, search=SearchConfig(index="off"),
+                    sequence=SequenceConfig(costs="looked-up" if index else "every"))
     localizer = Localizer(refmap, config, calibration=SURE)
     answers = SyntheticAnswers(CandidateSearch(refs, SearchConfig(index="on" if index else "off")),  # type: ignore[arg-type]
-                               np.random.default_rng(refs.n_frames))
+                               np.random.default_rng(refs.n_frames), config.sequence.nearest if index else 10)
     localizer.matcher = answers  # type: ignore[assignment]
     # Declared and trusted, the heading is known and so is the direction of travel: one sign searched.
     frame = Frame(0, np.zeros((32, 64, 3), dtype=np.uint8), camera="front" if one_direction else None)
@@ -206,10 +239,10 @@ def network_free_stages(real: ReferenceMap, queries: int) -> dict:
     return {"descriptor": summary(descriptor), "verify": summary(verify)}
 
 
-def run_size(n: int, real: np.ndarray, steps: int, queries: int, threads: int) -> dict:
+def run_size(n: int, real: np.ndarray, steps: int, queries: int, threads: int, repeat_places: bool) -> dict:
     rng = np.random.default_rng(n)
     with tempfile.TemporaryDirectory() as tmp:
-        refs, built = lost_map(n, real, Path(tmp), rng, threads)
+        refs, built = lost_map(n, real, Path(tmp), rng, threads, repeat_places)
         search = search_stage(refs, Config(), rng, queries)
         refmap = stub_map(Path(tmp) / "map", n)
         one = step_stages(refmap, refs, steps, one_direction=True, index=True)
@@ -224,10 +257,13 @@ def run_size(n: int, real: np.ndarray, steps: int, queries: int, threads: int) -
         "exact_over_index": search["exact"]["median_ms"] / search["index"]["median_ms"],
         "recall_at_10": search["recall_at_10"],
         "costs": summary(both["costs"]),
+        "costs_one_direction": summary(one["costs"]),
         "costs_after_exact_search": summary(exact["costs"]),
         "sequence": summary(both["sequence"]),
         "sequence_one_direction": summary(one["sequence"]),
         "step_index": summary([sum(v) for v in zip(*(both[k] for k in ("search", "costs", "sequence", "tracker")))]),
+        "step_index_one_direction": summary([sum(v) for v in zip(*(one[k] for k in ("search", "costs", "sequence",
+                                                                                    "tracker")))]),
         "step_exact": summary([sum(v) for v in zip(*(exact[k] for k in ("search", "costs", "sequence", "tracker")))]),
         "tracker": summary(both["tracker"]),
         "localized_at_end": bool(both["state"][0]),
@@ -242,6 +278,8 @@ def main() -> None:
     parser.add_argument("--real", type=Path, default=DEFAULT_REAL, help="a LoST map to sample descriptors around")
     parser.add_argument("--build-threads", type=int, default=os.cpu_count() or 1,
                         help="threads building each index (a benchmark's graph need not be reproducible)")
+    parser.add_argument("--repeat-places", action="store_true",
+                        help="stretches that repeat the real route's places (a worst case) rather than places of their own")
     parser.add_argument("--out", type=Path, default=RESULTS / "localizer.json")
     args = parser.parse_args()
     real = real_map(args.real)
@@ -249,26 +287,32 @@ def main() -> None:
     per_frame_evidence = sum(int(e["bytes"]) for name, e in real.manifest["arrays"].items()
                              if name not in ("descriptors", "appearance")) / real.n_frames
     vectors = np.asarray(real.descriptors, dtype=np.float32)
-    results = [run_size(n, vectors, args.steps, args.queries, args.build_threads) for n in args.sizes]
+    results = [run_size(n, vectors, args.steps, args.queries, args.build_threads, args.repeat_places)
+               for n in args.sizes]
     fixed_ms = fixed["descriptor"]["median_ms"] + fixed["verify"]["median_ms"]
     rows = []
     for r in results:
         r["after_network_index_ms"] = fixed_ms + r["step_index"]["median_ms"]
+        r["after_network_index_one_direction_ms"] = fixed_ms + r["step_index_one_direction"]["median_ms"]
         r["after_network_exact_ms"] = fixed_ms + r["step_exact"]["median_ms"]
         r["bytes_per_frame"] = 2 * vectors.shape[1] + r["index_bytes_per_frame"] + per_frame_evidence
         rows.append([r["map_frames"], r["search_index"]["median_ms"], r["search_exact"]["median_ms"],
                      r["exact_over_index"], r["recall_at_10"], r["costs"]["median_ms"],
+                     r["costs_one_direction"]["median_ms"],
                      r["costs_after_exact_search"]["median_ms"], r["sequence"]["median_ms"],
                      r["sequence"]["p90_ms"], r["tracker"]["median_ms"], r["after_network_index_ms"],
+                     r["after_network_index_one_direction_ms"],
                      r["after_network_exact_ms"], r["bytes_per_frame"] / 1e3])
     print(f"\ndescriptor {fixed['descriptor']['median_ms']:.3g} ms, verify {fixed['verify']['median_ms']:.3g} ms "
           f"(median, real Nordland map and queries; independent of the map's size)")
     print_table("Everything after the network, per frame (median ms; sequence p90 too)",
                 ["map frames", "search (index)", "search (exact)", "exact / index", "index Recall@10", "costs",
-                 "costs (exact search)", "sequence", "sequence p90", "tracker", "after network (index)",
-                 "after network (exact)", "kB per map frame"], rows)
+                 "costs (one direction)", "costs (exact search)", "sequence", "sequence p90", "tracker",
+                 "after network (index)", "after network (index, one direction)", "after network (exact)",
+                 "kB per map frame"], rows)
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6
     write_json(args.out, {"benchmark": "localizer", "real_map": str(args.real), "noise": NOISE,
+                          "stretch": STRETCH, "repeat_places": args.repeat_places,
                           "fixed_stages": fixed, "evidence_bytes_per_frame": per_frame_evidence,
                           "peak_rss_gb": peak, "sizes": results})
 

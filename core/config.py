@@ -32,6 +32,7 @@ DensityFilter = Literal["query", "both", "off"]
 Normalisation = Literal["running", "reference"]
 StreamMode = Literal["live", "lossless"]
 IndexUse = Literal["auto", "on", "off"]
+CostsUse = Literal["auto", "every", "looked-up"]
 
 
 @dataclass(frozen=True)
@@ -147,8 +148,20 @@ class SequenceConfig:
     acquire_speeds: tuple[float, ...] = (0.8, 0.9, 1.0, 1.1, 1.2)
     """Slopes searched without a track (OpenSeqSLAM's range), each with both signs: a stopped or slow
     vehicle is only plausible once the tracker has seen it slow down."""
+    costs: CostsUse = "auto"
+    """Where the trajectories' costs are computed: ``every`` map frame for every frame (a step costs
+    O(map size)); ``looked-up``: only where the filter looks, around its trajectories and the ``nearest``
+    map frames of each search (a step costs the same whatever the map size); ``auto``: looked up for maps
+    of at least ``costs_min_frames`` frames."""
+    costs_min_frames: int = 500000
+    """Map size from which ``auto`` looks costs up (below it computing them all is as fast)."""
     anchors: int = 20
-    """Trajectories are anchored at each frame's verified candidates and its this many lowest-cost references."""
+    """Trajectories are anchored at each frame's verified candidates and its this many lowest-cost references
+    (where costs are looked up: among those where the live trajectories pass and around the ``nearest``
+    map frames of its search)."""
+    nearest: int = 400
+    """Where costs are looked up: map frames nearest to a frame's descriptor around which (each with its
+    ``contrast_window`` neighbourhood) its anchors are looked for."""
     radius: int = 0
     """A trajectory takes a frame's lowest cost within this many reference frames of its line."""
     contrast_window: int = 10
@@ -160,6 +173,11 @@ class SequenceConfig:
     exclusion: int = 5
     """Confidence compares the best trajectory with the best one ending more than this many
     reference frames away."""
+
+
+def looks_up_costs(config: SequenceConfig, n_frames: int) -> bool:
+    """Whether a sequence filter with these settings looks its costs up on a map of ``n_frames``."""
+    return config.costs == "looked-up" or (config.costs == "auto" and n_frames >= config.costs_min_frames)
 
 
 @dataclass(frozen=True)
@@ -329,7 +347,8 @@ LIMITS: dict[str, dict[str, Bounds]] = {
     "camera": {"hfov_deg": Bounds(0, 180, above=True), "view_hfov_deg": Bounds(0, 180, above=True),
                "ignore_top": Bounds(0, 0.9), "ignore_bottom": Bounds(0, 0.9)},
     "sequence": {
-        "length": _AT_LEAST_1, "speeds": _AT_LEAST_0, "acquire_speeds": _ABOVE_0, "anchors": _AT_LEAST_0,
+        "length": _AT_LEAST_1, "speeds": _AT_LEAST_0, "acquire_speeds": _ABOVE_0, "anchors": _AT_LEAST_0, "nearest": _AT_LEAST_0,
+        "costs_min_frames": _AT_LEAST_1,
         "radius": _AT_LEAST_0, "contrast_window": Bounds(2), "reference_prior": _AT_LEAST_0,
         "penalty": Bounds(), "exclusion": _AT_LEAST_0,
     },

@@ -4,8 +4,10 @@
 
 1. the single-frame match (:class:`PlaceMatcher`: describe, search, verify);
 2. the sequence filter (:class:`SequenceFilter`) over the last L frames, fed
-   with the frame's candidates and its contrast-normalised cost for every
-   reference; its best trajectory gives the position and speed;
+   with the frame's candidates, the nearest map frames of its search and its
+   scores, from which it has contrast-normalised costs computed for every
+   map frame, or, on a large map (``sequence.costs``), only where it looks
+   (:mod:`lostx.core.costs`); its best trajectory gives the position and speed;
 3. the route tracker (:class:`RouteTracker`, a Kalman filter), which gates
    implausible jumps, narrows the speeds searched next, and restarts after a
    genuine jump.
@@ -48,7 +50,8 @@ import numpy as np
 
 from .backbones import Backbone
 from .calibration import Calibration, calibrate
-from .config import Config
+from .config import Config, looks_up_costs
+from .costs import EveryFrameCosts, LookedUpCosts
 from .errors import InputError
 from .estimate import Candidate, Estimate, Evidence
 from .frame import Frame, Heading
@@ -57,8 +60,7 @@ from .images import check_frame
 from .inputcheck import InputCheck
 from .matcher import FrameMatch, MatchResult, PlaceMatcher
 from .refmap import ReferenceMap
-from .search import top_k
-from .sequence import ReferenceNormaliser, SequenceFilter, contrast_normalise, signed
+from .sequence import SequenceFilter, signed
 from .tracker import RouteTracker
 from .verify import verify
 
@@ -89,8 +91,10 @@ class Localizer:
                 refmap.store_calibration(calibration)
         self.calibration = calibration
         seq = self.config.sequence
-        self.sequence = SequenceFilter(seq.length, tuple(signed(seq.speeds, stopped=True)), seq.radius, seq.penalty)
-        self.hubs = ReferenceNormaliser(seq.reference_prior)
+        costs = LookedUpCosts if looks_up_costs(seq, refmap.n_frames) else EveryFrameCosts
+        self.sequence = SequenceFilter(seq.length, tuple(signed(seq.speeds, stopped=True)), seq.radius, seq.penalty,
+                                       costs(refmap.n_frames, seq.length, seq.contrast_window, seq.reference_prior),
+                                       seq.anchors, seq.contrast_window // 2)
         self.tracker = RouteTracker(self.config.tracker)
         self.heading = HeadingFilter(self.config.heading)
         self._last_timestamp: float | None = None
@@ -99,7 +103,6 @@ class Localizer:
         """Forget everything seen so far (start of a new traverse)."""
         self.matcher.reset()
         self.sequence.reset()
-        self.hubs.reset()
         self.tracker.reset()
         self.heading.reset()
         self._last_timestamp = None
@@ -160,16 +163,15 @@ class Localizer:
                            direction: int) -> Estimate:
         cfg = self.config.sequence
         t0 = time.perf_counter()
-        costs = self.hubs(contrast_normalise(result.map_scores.every(), cfg.contrast_window))
-        anchors = np.union1d(result.candidates, top_k(costs, cfg.anchors))
-        t_costs = time.perf_counter()
+        costs_before = self.sequence.costs.seconds
         speeds = self._plausible_speeds(direction)
         if direction:
             self.sequence.keep_direction(direction)
-        seq = self.sequence.update(anchors, costs, speeds)
+        seq = self.sequence.update(result.map_scores, result.candidates, result.nearest, speeds)
         runner_up = self.sequence.runner_up(seq.position, cfg.exclusion)
         margin = max(0.0, runner_up - seq.score) if np.isfinite(runner_up) else np.inf
         t1 = time.perf_counter()
+        t_costs = t0 + (self.sequence.costs.seconds - costs_before)  # the costs' share of the update
         warming = seq.frames < cfg.length
         confidence = 0.0 if warming else self.calibration.sequence_confidence(margin)
         confident = self._confident(confidence, heading_sure)

@@ -11,7 +11,7 @@ import numpy as np
 
 from .backbones import Backbone, load_backbone
 from .camera import Geometry
-from .config import Config, LostConfig
+from .config import Config, LostConfig, looks_up_costs
 from .describe import LostDescriber, TrailingMeans
 from .errors import MapError
 from .frame import Camera, Heading
@@ -72,6 +72,9 @@ class MatchResult:
     """The single-frame score of any reference frame, computed when the sequence filter asks: the
     descriptor distance for thumbnails; for LoST-X the verification score of the verified candidates
     and, elsewhere, the descriptor distance times the candidates' median ratio of score to distance."""
+    nearest: np.ndarray | None = None
+    """The search's nearest reference frames, nearest first (``sequence.nearest`` of them where the sequence
+    filter looks its costs up, else the ``verify.top_k`` candidates): where it looks for its anchors."""
     heading: Heading = "same"
     """The heading hypothesis these scores were computed under (the query's x mirrored for ``opposite``)."""
 
@@ -207,19 +210,29 @@ class PlaceMatcher:
         # The opposite hypothesis compares the flipped thumbnail: left and right swap between the views.
         return self._thumbnail_match({"same": self.describer(image), "opposite": self.describer(image[:, ::-1])}, t0)
 
+    @property
+    def _nearest_count(self) -> int:
+        """Map frames the search returns: the candidates, and the seeds of a sequence filter that looks its
+        costs up."""
+        if self.config.sequence.enabled and looks_up_costs(self.config.sequence, self.map.n_frames):
+            return max(self.config.verify.top_k, self.config.sequence.nearest)
+        return self.config.verify.top_k
+
     def _thumbnail_match(self, queries: dict[str, np.ndarray], t0: float, removed: slice | None = None) -> FrameMatch:
         t1 = time.perf_counter()
         k = self.config.verify.top_k
         results = {}
         for heading, query in queries.items():
             distance_of = QueryDistances(self.search, query)
-            order, ranked = self.search.nearest(query, k, removed, distance_of)
+            nearest, distances = self.search.nearest(query, self._nearest_count, removed, distance_of)
+            order, ranked = nearest[:k], distances[:k]
             results[heading] = MatchResult(
                 candidates=order,
                 distances=ranked,
                 scores=ranked,
                 confidence=uniqueness(order, ranked, self.config.verify.uniqueness_exclusion),
                 map_scores=without(MapScores(distance_of, self.map.n_frames), removed),
+                nearest=nearest,
                 heading=heading,  # type: ignore[arg-type]
             )
         timings = {"network": 0.0, "descriptor": t1 - t0, "search": time.perf_counter() - t1, "verify": 0.0}
@@ -257,14 +270,15 @@ class PlaceMatcher:
                            timings: dict[str, float], t0: float, removed: slice | None = None) -> FrameMatch:
         cfg = self.config.verify
         distance_of = QueryDistances(self.search, vector)
-        shortlist, distances = self.search.nearest(vector, cfg.top_k, removed, distance_of)
+        nearest, near = self.search.nearest(vector, self._nearest_count, removed, distance_of)
+        shortlist, distances = nearest[: cfg.top_k], near[: cfg.top_k]
         t1 = time.perf_counter()
         timings.update({"search": t1 - t0, "verify": 0.0})
         if not cfg.enabled:
             return FrameMatch.either(MatchResult(
                 shortlist, distances, distances, uniqueness(shortlist, distances, cfg.uniqueness_exclusion),
                 query_labels=labels, timings=timings,
-                map_scores=without(MapScores(distance_of, self.map.n_frames), removed)))
+                map_scores=without(MapScores(distance_of, self.map.n_frames), removed), nearest=nearest))
         result = verify(
             evidence,
             self.map.evidence(shortlist),
@@ -290,6 +304,7 @@ class PlaceMatcher:
                 timings=timings,
                 map_scores=map_scores(distance_of, self.map.n_frames, shortlist, distances, scores, cfg.scoring,
                                       removed),
+                nearest=nearest,
                 heading=heading,  # type: ignore[arg-type]
             )
         return FrameMatch(answers["same"], answers["opposite"], heading_vote(result.scores, result.mirror_scores))

@@ -1,11 +1,12 @@
 """The online sequence filter (paper Sec. III-D, after OpenSeqSLAM), causal and incremental.
 
-Every frame t brings its top candidates (reference indices, the *anchors*)
-and its cost for every reference, c_t(r): the single-frame score, locally
-contrast-normalised over neighbouring references as in SeqSLAM
-(:func:`contrast_normalise`), so that costs of different frames are
-comparable and a reference that is close to everything does not win
-everywhere. Lower is better; 0 is an average reference.
+Every frame t brings its single-frame scores, its verified candidates and the nearest map frames of
+its search. Its cost at reference r, c_t(r), is the score locally contrast-normalised over neighbouring
+references as in SeqSLAM and standardised against r's own running statistics (hub suppression), so that
+costs of different frames are comparable and a reference that is close to everything does not win
+everywhere; lower is better, 0 is an average reference. Where the costs come from
+(:mod:`lostx.core.costs`): computed for every map frame as each frame arrives, or looked up where the
+filter looks, never for the whole map (``sequence.costs``: on large maps).
 
 A *trajectory* is a straight line in the (frame, reference) plane through
 one anchor (t_a, r_a) of a frame in the window, at a speed v from the
@@ -16,6 +17,10 @@ r(t) = r_a + v (t - t_a). On it, frame t costs
 
 and the trajectory's sequence score is the mean cost over the window's frames.
 The answer is the lowest-scoring trajectory's position at the newest frame.
+
+A frame's anchors are its candidates and its ``anchors`` lowest costs: over the whole map where every
+cost is known, else among those around the nearest map frames of its search and where the live
+trajectories pass.
 
 A trajectory's line is fixed in the plane, so each cost_t is looked up once:
 a new frame adds one cost to every live trajectory and spawns anchors x
@@ -28,32 +33,9 @@ from __future__ import annotations
 
 from collections import deque
 from dataclasses import dataclass
+from typing import Any, Protocol
 
 import numpy as np
-
-
-def contrast_normalise(scores: np.ndarray, window: int) -> np.ndarray:
-    """SeqSLAM's local contrast enhancement of one frame's scores over the references:
-
-        c(r) = (s(r) - mean_W(r) s) / std_W(r) s,   W(r) = the ``window`` + 1 references centred on r
-
-    (clipped at the ends). Where the neighbourhood is flat the cost is 0.
-    """
-    s = np.asarray(scores, dtype=np.float64)
-    n = len(s)
-    half = window // 2
-    lo = np.clip(np.arange(n) - half, 0, n)
-    hi = np.clip(np.arange(n) + half + 1, 0, n)
-    c1 = np.concatenate([[0.0], np.cumsum(s)])
-    c2 = np.concatenate([[0.0], np.cumsum(s * s)])
-    count = hi - lo
-    mean = (c1[hi] - c1[lo]) / count
-    var = np.maximum((c2[hi] - c2[lo]) / count - mean**2, 0.0)
-    std = np.sqrt(var * count / np.maximum(count - 1, 1))  # sample std, as SeqSLAM
-    out = np.zeros(n)
-    ok = std > 1e-12 * max(1.0, float(np.abs(s).max(initial=0.0)))
-    out[ok] = (s[ok] - mean[ok]) / std[ok]
-    return out.astype(np.float32)
 
 
 def signed(magnitudes: tuple[float, ...], stopped: bool) -> np.ndarray:
@@ -65,38 +47,26 @@ def signed(magnitudes: tuple[float, ...], stopped: bool) -> np.ndarray:
     return np.asarray(sorted(values), dtype=np.float64)
 
 
-class ReferenceNormaliser:
-    """Standardises each reference's cost against its own history over the queries seen so far.
+class WindowCosts(Protocol):
+    """The costs of the frames in the window, looked up by (frame, reference) (:mod:`lostx.core.costs`)."""
 
-    A reference that is close to every query (a tunnel, a blank frame: a *hub*)
-    has a low contrast-normalised cost for every query, and a trajectory that
-    stays on it wins everywhere. Subtracting each reference's running mean cost
-    and dividing by its running standard deviation removes that, causally.
-    The running statistics start from mean 0 and standard deviation 1 (what
-    contrast normalisation gives on average) with a weight of ``prior`` frames.
-    """
+    n_refs: int
+    seconds: float
 
-    def __init__(self, prior: float) -> None:
-        self.prior = float(prior)
-        self.reset()
+    def add(self, t: int, scores: Any) -> None:
+        """Frame t's scores or costs (None: a frame without costs); it replaces frame t - length."""
+
+    def at(self, times: np.ndarray, refs: np.ndarray) -> np.ndarray:
+        """Costs at (times, refs) broadcast together, refs on the map; NaN where there is none."""
+
+    def known(self, times: np.ndarray, refs: np.ndarray) -> np.ndarray:
+        """The costs known so far at (times, refs), NaN elsewhere; computes nothing."""
+
+    def lowest(self, t: int, k: int, near: np.ndarray) -> np.ndarray:
+        """The references of frame t's k lowest costs (among ``near`` where not every cost is known)."""
 
     def reset(self) -> None:
-        self._n = self.prior
-        self._sum: np.ndarray | None = None
-        self._sumsq: np.ndarray | None = None
-
-    def __call__(self, costs: np.ndarray) -> np.ndarray:
-        c = costs.astype(np.float64)
-        if self._sum is None or len(self._sum) != len(c):
-            self._n = self.prior
-            self._sum = np.zeros_like(c)
-            self._sumsq = np.full_like(c, self.prior)
-        self._n += 1.0
-        self._sum += c
-        self._sumsq += c * c
-        mean = self._sum / self._n
-        std = np.sqrt(np.maximum(self._sumsq / self._n - mean**2, 1e-6))
-        return ((c - mean) / std).astype(np.float32)
+        """Forget every frame."""
 
 
 @dataclass
@@ -115,19 +85,26 @@ class SequenceResult:
 class SequenceFilter:
     """Rolling window of the last ``length`` frames, scoring straight trajectories through their anchors."""
 
-    def __init__(self, length: int, speeds: tuple[float, ...], radius: int, penalty: float) -> None:
+    def __init__(self, length: int, speeds: tuple[float, ...], radius: int, penalty: float, costs: WindowCosts,
+                 anchors: int = 0, neighbourhood: int = 0) -> None:
+        """``costs``: where the window's costs come from; ``anchors``: how many of a frame's lowest costs
+        anchor trajectories besides its candidates; ``neighbourhood``: how far around each seed (a nearest
+        map frame of the frame's search) they are looked for, where not every cost is known."""
         if length < 1 or not speeds:
             raise ValueError("the sequence window needs at least one frame and one speed")
         self.length = length
         self.speeds = np.asarray(sorted(set(speeds)), dtype=np.float64)
         self.radius = int(radius)
         self.penalty = float(penalty)
+        self.costs = costs
+        self.anchors = int(anchors)
+        self.neighbourhood = int(neighbourhood)
         self.reset()
 
     def reset(self) -> None:
         self._t = -1
         self._times: deque[int] = deque()
-        self._ring: np.ndarray | None = None  # (length, N) costs of the window's frames; row = t % length
+        self.costs.reset()
         # Live trajectories: anchor time, anchor reference, speed, and one cost per window column
         # (column i holds frame t - length + 1 + i).
         self._anchor_t = np.zeros(0, dtype=np.int64)
@@ -142,31 +119,31 @@ class SequenceFilter:
 
     def _lookup(self, times: np.ndarray, where: np.ndarray) -> np.ndarray:
         """cost_t at positions ``where`` of frames ``times`` (broadcast together): the lowest cost within
-        ``radius``; the penalty off the map or for a frame without costs."""
-        assert self._ring is not None
-        n = self._ring.shape[1]
-        rows = np.broadcast_to(times % self.length, where.shape)
+        ``radius``; the penalty off the map or where a frame has no cost."""
+        n = self.costs.n_refs
+        times = np.broadcast_to(times, where.shape)
         nearest = np.rint(where).astype(np.int64)
         best = np.full(where.shape, np.inf)
         for offset in range(-self.radius, self.radius + 1):
             cells = nearest + offset
             inside = (cells >= 0) & (cells < n)
-            best = np.where(inside, np.fmin(best, self._ring[rows, np.clip(cells, 0, n - 1)]), best)
+            values = np.full(where.shape, np.nan)
+            values[inside] = self.costs.at(times[inside], cells[inside])
+            best = np.fmin(best, values)
         return np.where(np.isfinite(best), best, self.penalty)
 
-    def update(self, anchors: np.ndarray, costs: np.ndarray | None, speeds: np.ndarray | None = None) -> SequenceResult:
-        """Add the newest frame: its anchor references and its cost for every reference (or None).
+    def update(self, scores: Any, candidates: np.ndarray, seeds: np.ndarray | None = None,
+               speeds: np.ndarray | None = None) -> SequenceResult:
+        """Add the newest frame: its scores (what :attr:`costs` takes; None for a frame without), its
+        candidates (each anchors trajectories) and its seeds (map frames around which its lowest costs are
+        looked for, besides where the live trajectories pass).
 
         ``speeds`` optionally restricts the speeds of the trajectories this frame spawns
         (a tracker's plausible range); older trajectories keep theirs.
         """
         self._t += 1
         t = self._t
-        if costs is not None and self._ring is None:
-            self._ring = np.full((self.length, len(costs)), np.nan, dtype=np.float32)
-        if self._ring is not None:
-            self._ring[t % self.length] = np.nan if costs is None else costs
-        anchors = np.unique(np.asarray(anchors, dtype=np.float64)) if costs is not None else np.zeros(0)
+        self.costs.add(t, scores)
         self._times.append(t)
         if len(self._times) > self.length:
             self._times.popleft()
@@ -176,9 +153,10 @@ class SequenceFilter:
         live = self._anchor_t >= oldest
         self._anchor_t, self._anchor_r, self._speed = self._anchor_t[live], self._anchor_r[live], self._speed[live]
         self._costs = np.concatenate([self._costs[live, 1:], np.full((int(live.sum()), 1), np.nan)], axis=1)
-        if self._ring is not None and len(self._anchor_t):
+        if len(self._anchor_t):
             # The newest frame's cost on every live trajectory.
-            self._costs[:, -1] = self._lookup(np.array(t), self._anchor_r + self._speed * (t - self._anchor_t))
+            self._costs[:, -1] = self._lookup(np.array(t), self.positions())
+        anchors = self._new_anchors(t, candidates, seeds) if scores is not None else np.zeros(0)
 
         # Spawn the trajectories anchored at the newest frame, with their costs over the window.
         spawn = self.speeds if speeds is None or len(speeds) == 0 else np.asarray(speeds, dtype=np.float64)
@@ -196,6 +174,18 @@ class SequenceFilter:
         self._costs = np.concatenate([self._costs, new_costs])
         self._best_result = self._best()
         return self._best_result
+
+    def _new_anchors(self, t: int, candidates: np.ndarray, seeds: np.ndarray | None) -> np.ndarray:
+        """The candidates, and the ``anchors`` lowest costs of frame t: over the map where every cost is
+        known, else among the seeds' neighbourhoods and where the live trajectories pass."""
+        chosen = np.unique(np.asarray(candidates, dtype=np.int64))
+        if self.anchors == 0:
+            return chosen.astype(np.float64)
+        passing = np.rint(self.positions()).astype(np.int64)[:, None] + np.arange(-self.radius, self.radius + 1)
+        seeds = np.asarray(seeds if seeds is not None else [], dtype=np.int64)
+        around = seeds[:, None] + np.arange(-self.neighbourhood, self.neighbourhood + 1)
+        near = np.concatenate([passing.ravel(), chosen, around.ravel()])
+        return np.union1d(chosen, self.costs.lowest(t, self.anchors, near)).astype(np.float64)
 
     def keep_direction(self, sign: int) -> None:
         """Drop the live trajectories whose reference index runs against ``sign`` (+1 rising, -1 falling):
@@ -239,18 +229,18 @@ class SequenceFilter:
 
     def window(self, width: int) -> tuple[np.ndarray, np.ndarray]:
         """(frames, 2 * width + 1) costs around the best trajectory at each window frame, oldest first,
-        and the reference index of each cell (-1 off the map): the picture of the sequence search."""
+        and the reference index of each cell (-1 off the map): the picture of the sequence search. Where
+        costs are looked up, only what was looked up has one (NaN elsewhere): drawing computes nothing."""
         frames = len(self._times)
         costs = np.full((frames, 2 * width + 1), np.nan, dtype=np.float32)
         refs = np.full(costs.shape, -1, dtype=np.int64)
         best = self._best_result
-        if best is None or self._ring is None or not np.isfinite(best.trajectory).all():
+        if best is None or not np.isfinite(best.trajectory).all():
             return costs, refs
-        n = self._ring.shape[1]
+        n = self.costs.n_refs
         times = np.asarray(self._times)
         cells = np.rint(best.trajectory).astype(np.int64)[:, None] + np.arange(-width, width + 1)[None, :]
         inside = (cells >= 0) & (cells < n)
-        values = self._ring[np.broadcast_to((times % self.length)[:, None], cells.shape), np.clip(cells, 0, n - 1)]
-        costs[inside] = values[inside]
+        costs[inside] = self.costs.known(np.broadcast_to(times[:, None], cells.shape)[inside], cells[inside])
         refs[inside] = cells[inside]
         return costs, refs

@@ -200,11 +200,12 @@ def appearance_result(query: np.ndarray, refs: np.ndarray, config: Config) -> Fr
     """Single-frame answer of the appearance baseline: cosine distance of GeM descriptors (pooled, so
     it cannot tell the headings apart)."""
     distances = cosine_distances(query, refs)
-    order = top_k(distances, config.verify.top_k)
+    nearest = top_k(distances, max(config.verify.top_k, config.sequence.nearest))
+    order = nearest[: config.verify.top_k]
     ranked = distances[order]
     return FrameMatch.either(MatchResult(order, ranked, ranked,
                                          uniqueness(order, ranked, config.verify.uniqueness_exclusion),
-                                         map_scores=MapScores.of_array(distances), timings={}))
+                                         map_scores=MapScores.of_array(distances), nearest=nearest, timings={}))
 
 
 def single_results(method: str, pair: DatasetPair, maps: dict[str, ReferenceMap], config: Config,

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from lostx.core import Config, Localizer, ReferenceMap, build_map
-from lostx.core.config import SequenceConfig, TrackerConfig
+from lostx.core.config import SearchConfig, SequenceConfig, TrackerConfig
 from lostx.evaluation.groundtruth import index_aligned
 from lostx.evaluation.metrics import evaluate
 from lostx.core.thumbnail import ThumbnailDescriber
@@ -24,6 +24,8 @@ MODES = {
     "single": Config(sequence=SequenceConfig(enabled=False)),
     "sequence": Config(tracker=TrackerConfig(enabled=False)),
     "sequence+tracker": Config(),
+    # As on a city-scale map: through the map's approximate index, costs looked up where the filter looks.
+    "sequence+tracker, index": Config(search=SearchConfig(index="on"), sequence=SequenceConfig(costs="looked-up")),
 }
 
 # (tolerance in frames) -> (recall at 100 % precision, max F1, Recall@1), measured with the defaults.
@@ -31,6 +33,7 @@ MEASURED = {
     "single": {0: (0.003, 0.073, 0.045), 1: (0.004, 0.076, 0.047), 2: (0.004, 0.079, 0.049)},
     "sequence": {0: (0.0, 0.865, 0.823), 1: (0.596, 0.877, 0.835), 2: (0.694, 0.884, 0.843)},
     "sequence+tracker": {0: (0.0, 0.871, 0.862), 1: (0.644, 0.883, 0.882), 2: (0.7, 0.896, 0.896)},
+    "sequence+tracker, index": {0: (0.0, 0.865, 0.854), 1: (0.61, 0.878, 0.876), 2: (0.706, 0.891, 0.891)},
 }
 
 @pytest.fixture(scope="module")
@@ -71,12 +74,12 @@ def test_sequence_filter_beats_batch_seqslam_clearly():
 
 
 def test_localized_answers_are_right(runs):
-    for mode in ("sequence", "sequence+tracker"):
+    for mode in ("sequence", "sequence+tracker", "sequence+tracker, index"):
         estimates = runs[mode]
         localized = [e for e in estimates if e.state == "localized"]
         wrong = [e for e in localized if abs(e.match_index - e.frame_id) > 1]
         assert wrong == []
-        # Measured: 2041 (sequence) and 2069 (with the tracker) of 3576, never below the 56.5 % a fixed
+        # Measured: 2041 (sequence), 2069 (with the tracker) and 2068 (through the index) of 3576, never below the 56.5 % a fixed
         # threshold tuned on this data reached.
         assert len(localized) >= 0.565 * len(estimates)
 
@@ -92,20 +95,23 @@ def test_warm_up_is_reported(runs):
 GAP = (1500, 1700)  # summer places removed from the map
 
 
-@pytest.fixture(scope="module")
-def gap_run(tmp_path_factory, nordland) -> tuple[np.ndarray, list]:
+@pytest.fixture(scope="module", params=["off", "on"], ids=["every frame", "index and costs looked up"])
+def gap_run(request, tmp_path_factory, nordland) -> tuple[np.ndarray, list, bool]:
+    """With costs for every map frame, and as on a city-scale map: through the index, costs looked up."""
     summer = folder_traverse(nordland / "summer")
     kept = [i for i in range(len(summer)) if not GAP[0] <= i < GAP[1]]
     out = tmp_path_factory.mktemp("gap") / "map"
     build_map(summer.subset(kept), out, describer=ThumbnailDescriber(), progress=False)
-    localizer = Localizer(ReferenceMap.open(out), Config())
+    config = MODES["sequence+tracker, index" if request.param == "on" else "sequence+tracker"]
+    localizer = Localizer(ReferenceMap.open(out), config)
     winter = folder_traverse(nordland / "winter")
     queries = np.arange(1200, 2000)
-    return queries, [localizer.step(dataclasses.replace(winter.frame(q), id=int(q))) for q in queries]
+    return queries, [localizer.step(dataclasses.replace(winter.frame(q), id=int(q))) for q in queries], \
+        request.param == "on"
 
 
 def test_leaving_the_map(gap_run):
-    queries, estimates = gap_run
+    queries, estimates, looked_up = gap_run
     # Map index of each query's true place (-1 inside the removed stretch).
     truth = np.where(queries < GAP[0], queries, np.where(queries >= GAP[1], queries - (GAP[1] - GAP[0]), -1))
     localized = np.array([e.state == "localized" for e in estimates])
@@ -118,4 +124,7 @@ def test_leaving_the_map(gap_run):
     # ... and localized again 16 frames after the stretch (the window is 20 frames long), correctly.
     after = np.flatnonzero(~inside & (queries >= GAP[1]) & localized)
     assert after[0] - np.flatnonzero(queries == GAP[1])[0] == 16
-    assert (np.abs(pred - truth)[localized] <= 1).all()
+    # Measured: every localized answer within one frame with costs for every map frame; with costs looked up,
+    # one of 443 two frames off (query 1344, before the stretch, confidence 0.9993).
+    errors = np.abs(pred - truth)[localized]
+    assert (errors > 1).sum() == (1 if looked_up else 0) and errors.max() <= (2 if looked_up else 1)

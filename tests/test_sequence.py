@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lostx.core.sequence import ReferenceNormaliser, SequenceFilter, contrast_normalise, signed
+from lostx.core.costs import ReferenceNormaliser, RingCosts, contrast_normalise
+from lostx.core.sequence import SequenceFilter, signed
 
 SPEEDS = (-1.2, -0.8, 0.0, 0.5, 0.8, 1.0, 1.2, 2.0)
 
@@ -45,6 +46,11 @@ def batch_answers(frames: list[tuple[np.ndarray, np.ndarray | None, np.ndarray]]
     return answers
 
 
+def given_costs(length: int, speeds: tuple[float, ...], radius: int, penalty: float, n_refs: int) -> SequenceFilter:
+    """A filter over costs given whole, anchored at the candidates it is given."""
+    return SequenceFilter(length, speeds, radius, penalty, RingCosts(n_refs, length))
+
+
 def synthetic_traverse(rng: np.random.Generator, n_frames: int, n_refs: int) -> list:
     frames = []
     for t in range(n_frames):
@@ -60,8 +66,8 @@ def synthetic_traverse(rng: np.random.Generator, n_frames: int, n_refs: int) -> 
 @pytest.mark.parametrize("length, radius", [(5, 0), (8, 1), (1, 0)])
 def test_online_equals_batch_on_a_synthetic_traverse(rng, length, radius):
     frames = synthetic_traverse(rng, 30, 60)
-    online = SequenceFilter(length, SPEEDS, radius, penalty=0.3)
-    got = [online.update(a, c, s) for a, c, s in frames]
+    online = given_costs(length, SPEEDS, radius, 0.3, 60)
+    got = [online.update(c, a, None, s) for a, c, s in frames]
     want = batch_answers(frames, length, radius, 0.3)
     for g, (position, speed, score) in zip(got, want):
         np.testing.assert_equal((g.position, g.speed), (position, speed))
@@ -85,59 +91,57 @@ def test_online_equals_batch_on_real_nordland_candidates(nordland):
         localizer = Localizer(ReferenceMap.open(f"{tmp}/map"), Config())
         fed: list = []
         directions: dict[int, int] = {}
-        original, prune = localizer.sequence.update, localizer.sequence.keep_direction
+        sequence = localizer.sequence
+        original, prune, anchored = sequence.update, sequence.keep_direction, sequence._new_anchors
 
-        def recording(anchors, costs, speeds=None):
-            fed.append((np.asarray(anchors).copy(), costs.copy(), np.asarray(speeds).copy()))
-            return original(anchors, costs, speeds)
+        def recording(scores, candidates, seeds=None, speeds=None):
+            fed.append([None, None, np.asarray(speeds).copy()])
+            return original(scores, candidates, seeds, speeds)
+
+        def anchoring(t, candidates, seeds):
+            anchors = anchored(t, candidates, seeds)
+            # What the filter was given: the frame's anchors and its cost of every reference.
+            fed[-1][:2] = anchors.copy(), sequence.costs.at(np.array(t), np.arange(sequence.costs.n_refs))
+            return anchors
 
         def pruning(sign):
             directions[len(fed)] = sign  # applied before the update of frame len(fed)
             return prune(sign)
 
-        localizer.sequence.update, localizer.sequence.keep_direction = recording, pruning
+        sequence.update, sequence.keep_direction, sequence._new_anchors = recording, pruning, anchoring
         winter = folder_traverse(nordland / "winter")
         online = [localizer.step(Frame(i, winter.frame(300 + i).image)) for i in range(200)]
     cfg = Config().sequence
     want = batch_answers(fed, cfg.length, cfg.radius, cfg.penalty, directions)
     right = [e for e in online if abs(e.match_index - e.frame_id) <= 1]
     assert len(right) > 100  # the scene is recognised: the comparison covers real, varied answers
-    fresh = SequenceFilter(cfg.length, tuple(signed(cfg.speeds, stopped=True)), cfg.radius, cfg.penalty)
+    fresh = given_costs(cfg.length, tuple(signed(cfg.speeds, stopped=True)), cfg.radius, cfg.penalty, 400)
     for (anchors, costs, speeds), (position, speed, score) in zip(fed, want):
-        got = fresh.update(anchors, costs, speeds)
+        got = fresh.update(costs, anchors, None, speeds)
         assert (got.position, got.speed) == (position, speed)
         assert got.score == pytest.approx(score, rel=1e-6, abs=1e-6)
 
 
 def test_live_trajectories_are_bounded_whatever_the_map_size(rng):
     for n_refs in (100, 100_000):
-        seq = SequenceFilter(10, SPEEDS, 0, 0.0)
+        seq = given_costs(10, SPEEDS, 0, 0.0, n_refs)
         for _ in range(25):
-            seq.update(rng.integers(0, n_refs, 20), rng.normal(size=n_refs).astype(np.float32))
+            seq.update(rng.normal(size=n_refs).astype(np.float32), rng.integers(0, n_refs, 20))
         assert len(seq.scores()) <= 10 * 20 * len(SPEEDS)
 
 
 def test_warm_up_and_off_map_penalty():
-    seq = SequenceFilter(4, (1.0,), 0, penalty=5.0)
+    seq = given_costs(4, (1.0,), 0, 5.0, 3)
     costs = np.zeros(3, dtype=np.float32)
     costs[0] = -1.0
-    first = seq.update(np.array([0]), costs)
+    first = seq.update(costs, np.array([0]))
     assert first.frames == 1 and first.score == pytest.approx(-1.0)
     for _ in range(4):
-        result = seq.update(np.array([0]), costs)
+        result = seq.update(costs, np.array([0]))
     # The newest trajectory through reference 0 runs off the map on the left for the older frames.
     assert result.frames == 4
     assert np.isfinite(result.score)
-    assert seq.update(np.array([2]), None).frames == 4  # a frame without costs: no crash, penalty only
-
-
-def test_contrast_normalisation_by_hand():
-    scores = np.array([1.0, 2.0, 3.0, 10.0, 3.0])
-    got = contrast_normalise(scores, window=2)  # neighbourhoods of 3 references
-    neighbourhood = np.array([2.0, 3.0, 10.0])
-    assert got[2] == pytest.approx((3.0 - neighbourhood.mean()) / neighbourhood.std(ddof=1), rel=1e-5)
-    assert got[0] == pytest.approx((1.0 - 1.5) / np.std([1.0, 2.0], ddof=1), rel=1e-5)
-    assert contrast_normalise(np.ones(6), 4).tolist() == [0.0] * 6  # flat: no contrast
+    assert seq.update(None, np.array([2])).frames == 4  # a frame without costs: no crash, penalty only
 
 
 def test_reference_normaliser_removes_a_hub(rng):
