@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lostx.core.costs import ReferenceNormaliser, RingCosts, contrast_normalise
+from lostx.core.costs import ReferenceNormaliser, RingCosts
 from lostx.core.sequence import SequenceFilter, signed
 
 SPEEDS = (-1.2, -0.8, 0.0, 0.5, 0.8, 1.0, 1.2, 2.0)
