@@ -37,12 +37,25 @@ from .scores import MapScores
 from .search import top_k
 
 
+def local_contrast(own: np.ndarray, total: np.ndarray, total_sq: np.ndarray, count: np.ndarray,
+                   scale: np.ndarray | float) -> np.ndarray:
+    """c = (s - mean) / std of scores ``own`` over neighbourhoods of ``count`` scores summing to ``total``
+    (and their squares to ``total_sq``), with the sample std as SeqSLAM; 0 where the neighbourhood is flat
+    (std not above 1e-12 times ``scale``, at least 1)."""
+    n = np.maximum(count, 1)
+    mean = total / n
+    var = np.maximum(total_sq / n - mean**2, 0.0)
+    std = np.sqrt(var * count / np.maximum(count - 1, 1))
+    ok = std > 1e-12 * np.maximum(1.0, scale)
+    return np.where(ok, (own - mean) / np.where(ok, std, 1.0), 0.0)
+
+
 def contrast_normalise(scores: np.ndarray, window: int) -> np.ndarray:
     """SeqSLAM's local contrast enhancement of one frame's scores over the references:
 
         c(r) = (s(r) - mean_W(r) s) / std_W(r) s,   W(r) = the ``window`` + 1 references centred on r
 
-    (clipped at the ends). Where the neighbourhood is flat the cost is 0.
+    (clipped at the ends), from prefix sums. Where the neighbourhood is flat the cost is 0.
     """
     s = np.asarray(scores, dtype=np.float64)
     n = len(s)
@@ -51,41 +64,8 @@ def contrast_normalise(scores: np.ndarray, window: int) -> np.ndarray:
     hi = np.clip(np.arange(n) + half + 1, 0, n)
     c1 = np.concatenate([[0.0], np.cumsum(s)])
     c2 = np.concatenate([[0.0], np.cumsum(s * s)])
-    count = hi - lo
-    mean = (c1[hi] - c1[lo]) / count
-    var = np.maximum((c2[hi] - c2[lo]) / count - mean**2, 0.0)
-    std = np.sqrt(var * count / np.maximum(count - 1, 1))  # sample std, as SeqSLAM
-    out = np.zeros(n)
-    ok = std > 1e-12 * max(1.0, float(np.abs(s).max(initial=0.0)))
-    out[ok] = (s[ok] - mean[ok]) / std[ok]
-    return out.astype(np.float32)
-
-
-class ReferenceNormaliser:
-    """Standardises each reference's cost against its own history over the queries seen so far (every
-    reference, every frame): hub suppression with exact running statistics."""
-
-    def __init__(self, prior: float) -> None:
-        self.prior = float(prior)
-        self.reset()
-
-    def reset(self) -> None:
-        self._n = self.prior
-        self._sum: np.ndarray | None = None
-        self._sumsq: np.ndarray | None = None
-
-    def __call__(self, costs: np.ndarray) -> np.ndarray:
-        c = costs.astype(np.float64)
-        if self._sum is None or len(self._sum) != len(c):
-            self._n = self.prior
-            self._sum = np.zeros_like(c)
-            self._sumsq = np.full_like(c, self.prior)
-        self._n += 1.0
-        self._sum += c
-        self._sumsq += c * c
-        mean = self._sum / self._n
-        std = np.sqrt(np.maximum(self._sumsq / self._n - mean**2, 1e-6))
-        return ((c - mean) / std).astype(np.float32)
+    return local_contrast(s, c1[hi] - c1[lo], c2[hi] - c2[lo], hi - lo,
+                          float(np.abs(s).max(initial=0.0))).astype(np.float32)
 
 
 class RingCosts:
@@ -121,32 +101,38 @@ class EveryFrameCosts(RingCosts):
 
     def __init__(self, n_refs: int, length: int, contrast_window: int, hub_prior: float) -> None:
         self.window = int(contrast_window)
-        self.hubs = ReferenceNormaliser(hub_prior)
+        self.hub_prior = float(hub_prior)
         super().__init__(n_refs, length)
 
     def reset(self) -> None:
         super().reset()
-        self.hubs.reset()
+        self.hubs = HubNormaliser(self.n_refs, self.hub_prior)
 
     def add(self, t: int, scores: MapScores | None) -> None:  # type: ignore[override]
         start = time.perf_counter()
-        costs = None if scores is None else self.hubs(contrast_normalise(scores.every(), self.window))
+        costs = None if scores is None else self.hubs.every(contrast_normalise(scores.every(), self.window))
         super().add(t, costs)
         self.seconds += time.perf_counter() - start
 
 
 class HubNormaliser:
-    """Each reference's running cost statistics over the costs computed for it so far.
-
-    Dense arrays over the map, allocated as zeros: the operating system commits their pages only where
-    references are looked up, so a long map costs memory only where the traverse has been.
-    """
+    """Each reference's running cost statistics over the costs it has had so far, starting from mean 0 and
+    standard deviation 1 weighing ``prior`` frames: every reference every frame (:meth:`every`), or the
+    references whose costs were looked up (:meth:`__call__`)."""
 
     def __init__(self, n_refs: int, prior: float) -> None:
         self.prior = float(prior)
         self._count = np.zeros(n_refs)
         self._sum = np.zeros(n_refs)
-        self._sumsq = np.zeros(n_refs)  # beyond the prior's (variance 1 over ``prior`` frames)
+        self._sumsq = np.full(n_refs, self.prior)  # the prior's variance 1 over ``prior`` frames
+
+    def every(self, costs: np.ndarray) -> np.ndarray:
+        """Add one cost of every reference to the statistics and return them standardised (float32)."""
+        c = costs.astype(np.float64)
+        self._count += 1.0
+        self._sum += c
+        self._sumsq += c * c
+        return self._standardised(slice(None), c).astype(np.float32)
 
     def __call__(self, refs: np.ndarray, costs: np.ndarray) -> np.ndarray:
         """Add ``costs`` (of references ``refs``, which may repeat: one frame each) to the statistics and
@@ -157,9 +143,12 @@ class HubNormaliser:
         np.add.at(self._count, r, 1.0)
         np.add.at(self._sum, r, c)
         np.add.at(self._sumsq, r, c * c)
+        return self._standardised(refs, costs)
+
+    def _standardised(self, refs: np.ndarray | slice, costs: np.ndarray) -> np.ndarray:
         n = self.prior + self._count[refs]
         mean = self._sum[refs] / n
-        std = np.sqrt(np.maximum((self.prior + self._sumsq[refs]) / n - mean**2, 1e-6))
+        std = np.sqrt(np.maximum(self._sumsq[refs] / n - mean**2, 1e-6))
         return (costs - mean) / std
 
 
@@ -223,10 +212,6 @@ class WindowCells:
         taken = np.flatnonzero(self._used & (self._row == row))
         self.slot_of[row, self._block[taken]] = -1
         self._used[taken] = False
-
-    @property
-    def bytes(self) -> int:
-        return sum(a.nbytes for a in (self.slot_of, self.score, self.cost, self.has_score, self.has_cost, self.stamp))
 
 
 class LookedUpCosts:
@@ -300,13 +285,8 @@ class LookedUpCosts:
         s = np.where(inside, self.cells.score[around_slots, around_column], 0.0)
         valid = inside & np.isfinite(s)
         s = np.where(valid, s, 0.0)
-        count = valid.sum(axis=1)
-        mean = s.sum(axis=1) / np.maximum(count, 1)
-        var = np.maximum((s * s).sum(axis=1) / np.maximum(count, 1) - mean**2, 0.0)
-        std = np.sqrt(var * count / np.maximum(count - 1, 1))  # sample std, as SeqSLAM
         own = self.cells.score[slots, column]
-        flat = ~(std > 1e-12 * np.maximum(1.0, np.abs(own)))
-        contrast = np.where(flat, 0.0, (own - mean) / np.where(flat, 1.0, std))
+        contrast = local_contrast(own, s.sum(axis=1), (s * s).sum(axis=1), valid.sum(axis=1), np.abs(own))
         contrast = np.where(np.isfinite(own), contrast.astype(np.float32).astype(np.float64), np.nan)
         self.cells.cost[slots, column] = self.hubs(refs, contrast).astype(np.float32)
         self.cells.has_cost[slots, column] = True

@@ -126,6 +126,17 @@ def test_costs_of_one_reference_in_several_frames_all_count():
     assert hubs(np.array([2]), np.array([-1.0]))[0] == pytest.approx(single(np.array([2]), np.array([-1.0]))[0])
 
 
+def test_hub_normaliser_over_every_reference_removes_a_hub(rng):
+    hubs = HubNormaliser(50, prior=5.0)
+    for _ in range(200):
+        costs = rng.normal(size=50)
+        costs[7] -= 3.0  # reference 7 looks like every query
+        out = hubs.every(costs)
+    assert out.dtype == np.float32
+    assert abs(out[7]) < 3.0
+    assert abs(np.mean(out)) < 0.5
+
+
 def test_hub_normaliser_removes_a_hub(rng):
     hubs = HubNormaliser(50, prior=5.0)
     refs = np.arange(50)
