@@ -22,11 +22,11 @@ import numpy as np
 
 from common import RESULTS, print_table, summary, time_call, write_json
 from lostx.core import Config, Frame, Localizer, LostDescriber, ReferenceMap, load_backbone
-from lostx.core.keypoints import KeypointEvidence, frame_evidence
-from lostx.core.lost import class_means, lost_descriptor
+from lostx.core.describe.keypoints import KeypointEvidence, frame_evidence
+from lostx.core.describe.lost import class_means, lost_descriptor
 from lostx.core.paths import data_dir
-from lostx.core.mapwriter import MapFrame, MapWriter
-from lostx.core.verify import score_pairs, verify
+from lostx.core.maps.mapwriter import MapFrame, MapWriter
+from lostx.core.match.verify import score_pairs, verify
 from lostx.replay.folder import folder_traverse
 
 

@@ -4,9 +4,9 @@ The map descriptors are sampled around real ones, as in bench_localizer.py; the 
 plus as much noise again. Both graph indices are HNSW with the same shape (32 neighbours, a candidate
 list of 80 while building, 64 while searching) and 8-bit codes, built and searched on one thread:
 
-- faiss ``IndexHNSWSQ`` with a scalar quantiser trained per dimension (lostx.core.index);
+- faiss ``IndexHNSWSQ`` with a scalar quantiser trained per dimension (lostx.core.maps.index);
 - usearch ``Index`` with ``i8`` scalars (its fixed range: a component times 127);
-- exact: every map frame compared (lostx.core.search).
+- exact: every map frame compared (lostx.core.match.search).
 
 Reported: Recall@10 of the index's own top 10 against exact search, and of lostx's search (the
 index's shortlist ranked again by exact distance); ms per query; build seconds; bytes per frame.
@@ -30,8 +30,8 @@ import numpy as np
 from bench_localizer import BLOCK, DEFAULT_REAL, DescriptorMap, real_map, sampled
 from common import RESULTS, print_table, summary, write_json
 from lostx.core.config import SearchConfig
-from lostx.core.index import BUILD_BREADTH, NEIGHBOURS, ApproximateIndex, build_index
-from lostx.core.search import CandidateSearch
+from lostx.core.maps.index import BUILD_BREADTH, NEIGHBOURS, ApproximateIndex, build_index
+from lostx.core.match.search import CandidateSearch
 
 K = 10
 BREADTH = 64

@@ -43,12 +43,12 @@ from common import RESULTS, cpu_seconds, print_table, write_json
 from lostx.core import Frame
 from lostx.core.build import build_map
 from lostx.core.paths import data_dir
-from lostx.core.thumbnail import ThumbnailDescriber
+from lostx.core.describe.thumbnail import ThumbnailDescriber
 from lostx.replay.folder import folder_traverse
 from lostx.stream.client import Listener
 from lostx.stream.processes import ProcessGroup, lostx_command
 from lostx.stream.producer import FramePublisher
-from lostx.stream.protocol import Result, Stats
+from lostx.stream.messages import Result, Stats
 
 
 @dataclasses.dataclass

@@ -49,14 +49,14 @@ import numpy as np
 
 from common import RESULTS, print_table, summary, time_call, write_json
 from lostx.core import Config, Frame, Localizer, ReferenceMap
-from lostx.core.calibration import Calibration
+from lostx.core.decide.calibration import Calibration
 from lostx.core.config import HeadingConfig, SearchConfig, SequenceConfig
-from lostx.core.scores import MapScores
-from lostx.core.index import ApproximateIndex, build_index
-from lostx.core.mapwriter import MapFrame, MapWriter
-from lostx.core.matcher import FrameMatch, MatchResult, PlaceMatcher
+from lostx.core.match.scores import MapScores
+from lostx.core.maps.index import ApproximateIndex, build_index
+from lostx.core.maps.mapwriter import MapFrame, MapWriter
+from lostx.core.match.matcher import FrameMatch, MatchResult, PlaceMatcher
 from lostx.core.paths import data_dir
-from lostx.core.search import CandidateSearch, QueryDistances
+from lostx.core.match.search import CandidateSearch, QueryDistances
 
 NOISE = 0.5
 """Noise per dimension, relative to a unit descriptor's typical component (1 / sqrt(K))."""

@@ -47,7 +47,8 @@ from lostx.replay.folder import folder_traverse
 from lostx.stream.client import Listener
 from lostx.stream.processes import ProcessGroup, lostx_command
 from lostx.stream.producer import FramePublisher
-from lostx.stream.protocol import Result, encode_frame
+from lostx.stream.messages import Result
+from lostx.stream.wire import encode_frame
 
 
 def night_frames(n: int) -> list[Frame]:

@@ -55,11 +55,11 @@ from pathlib import Path
 from lostx.core.backbones import load_backbone
 from lostx.core.build import build_map
 from lostx.core.config import Config
-from lostx.core.describe import LostDescriber
+from lostx.core.describe.describer import LostDescriber
 from lostx.core.frame import Frame
 from lostx.core.localizer import Localizer
 from lostx.core.paths import data_dir
-from lostx.core.refmap import ReferenceMap
+from lostx.core.maps.refmap import ReferenceMap
 from lostx.replay.folder import folder_traverse
 from lostx.viz.images import ReferenceImages
 from lostx.viz.sink import RerunSink, SinkSettings

@@ -30,7 +30,7 @@ from common import RESULTS, print_table, write_json  # noqa: I001  (benchmarks/c
 
 from lostx.core import Config, Localizer, ReferenceMap, build_map, load_backbone
 from lostx.core.config import BackboneConfig, CameraConfig, HeadingConfig, LostConfig, SequenceConfig, VerifyConfig
-from lostx.core.describe import LostDescriber
+from lostx.core.describe.describer import LostDescriber
 from lostx.core.paths import data_dir
 from lostx.evaluation.groundtruth import from_positions
 from lostx.replay.dataset import SourceOptions, open_traverse

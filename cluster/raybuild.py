@@ -19,8 +19,8 @@ from typing import Any, Callable
 from lostx.core.build import FrameSource, describe_chunks, make_describer
 from lostx.core.config import Config
 from lostx.core.errors import InputError, LostxError
-from lostx.core.mapwriter import CHUNK_FRAMES, MapChunk
-from lostx.core.refmap import backbone_dict
+from lostx.core.maps.format import backbone_dict
+from lostx.core.maps.mapwriter import CHUNK_FRAMES, MapChunk
 
 
 def import_ray() -> Any:

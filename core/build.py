@@ -1,6 +1,6 @@
 """Building a reference map from a traverse: describe every frame, commit the map atomically, calibrate.
 
-Described frames are checkpointed in chunks beside the map folder (:mod:`lostx.core.checkpoint`):
+Described frames are checkpointed in chunks beside the map folder (:mod:`lostx.core.maps.checkpoint`):
 an interrupted build resumes from them. The describing runs here, or on a cluster
 (:class:`ChunkDescribers`, e.g. Ray: :mod:`lostx.cluster`); either way every frame's class
 means are averaged over the same centred window, so the map is the same.
@@ -20,18 +20,20 @@ from typing import Callable, Iterable, Iterator, Protocol, Sequence
 import numpy as np
 from tqdm import tqdm
 
-from .calibration import calibrate
-from .camera import Geometry
-from .checkpoint import BuildCheckpoint, missing_ranges
 from .config import Config
-from .describe import DescribedFrame, LostDescriber
+from .decide.calibration import store
+from .describe.camera import Geometry
+from .describe.describer import DescribedFrame, LostDescriber
+from .describe.inputcheck import label_frequencies, looks
+from .describe.lost import centred_window, window_means
+from .describe.thumbnail import ThumbnailDescriber
 from .errors import MapError
 from .frame import Frame
-from .inputcheck import label_frequencies, looks
-from .lost import centred_window, window_means
-from .mapwriter import CHUNK_FRAMES, MapChunk, MapFrame, MapWriter
-from .refmap import BACKBONE_IDENTITY, MAP_VERSION, MapKind, ReferenceMap, backbone_dict
-from .thumbnail import ThumbnailDescriber
+from .localizer import calibrate
+from .maps.checkpoint import BuildCheckpoint, missing_ranges
+from .maps.format import BACKBONE_IDENTITY, MAP_VERSION, MapKind, backbone_dict
+from .maps.mapwriter import CHUNK_FRAMES, MapChunk, MapFrame, MapWriter
+from .maps.refmap import ReferenceMap
 
 
 @dataclass
@@ -67,7 +69,7 @@ class ChunkDescribers(Protocol):
                  thumbnail: dict | None, on_chunk: Callable[[MapChunk, dict | None], None]) -> None:
         """Describe frames [start, stop) of each range, as :func:`describe_chunks` does with
         :func:`make_describer`, calling ``on_chunk`` with every chunk as it arrives and the backbone that
-        described it (:func:`lostx.core.refmap.backbone_dict`; None for thumbnails)."""
+        described it (:func:`lostx.core.maps.format.backbone_dict`; None for thumbnails)."""
 
 
 def make_describer(config: Config, thumbnail: dict | None) -> LostDescriber | ThumbnailDescriber:
@@ -254,7 +256,7 @@ def build_map(
     backbone = describer.backbone if isinstance(describer, LostDescriber) else None
     frames_measured = min(refmap.n_frames, config.decision.calibration_frames)
     with tqdm(total=frames_measured, desc="calibrating", unit="frame", disable=not progress, leave=False) as cbar:
-        refmap.store_calibration(calibrate(refmap, config, backbone, progress=cbar.update))
+        store(refmap.path, calibrate(refmap, config, backbone, progress=cbar.update))
     return BuildSummary(path=path, n_frames=refmap.n_frames, seconds=time.perf_counter() - start, bytes=writer.nbytes,
                         resumed=resumed)
 

@@ -57,7 +57,7 @@ class BackboneConfig:
 @dataclass(frozen=True)
 class CameraConfig:
     """The vehicle's cameras, by the direction they face (``front``, ``rear``), brought to a common geometry
-    before the network (lostx.core.camera). A frame takes the settings of the camera it declares; a frame
+    before the network (lostx.core.describe.camera). A frame takes the settings of the camera it declares; a frame
     that declares none is taken as it is."""
 
     hfov_deg: dict[str, float] = field(default_factory=dict)
@@ -119,7 +119,7 @@ class VerifyConfig:
 @dataclass(frozen=True)
 class SearchConfig:
     """How the nearest map frames of a query descriptor are found: compared with every map frame, or
-    through the approximate index built with the map (see lostx.core.search)."""
+    through the approximate index built with the map (see lostx.core.match.search)."""
 
     index: IndexUse = "auto"
     """``auto``: the index for maps of at least ``index_min_frames`` frames, every frame compared below;
@@ -135,7 +135,7 @@ class SearchConfig:
 
 @dataclass(frozen=True)
 class SequenceConfig:
-    """Online sequence filter over a rolling window of frames (see lostx.core.sequence)."""
+    """Online sequence filter over a rolling window of frames (see lostx.core.route.sequence)."""
 
     enabled: bool = True
     """Answer with the sequence filter (``False``: single-frame answers)."""
@@ -182,7 +182,7 @@ def looks_up_costs(config: SequenceConfig, n_frames: int) -> bool:
 
 @dataclass(frozen=True)
 class DecisionConfig:
-    """When an answer is ``localized``: its confidence, calibrated on the map (see lostx.core.calibration)."""
+    """When an answer is ``localized``: its confidence, calibrated on the map (see lostx.core.decide.calibration)."""
 
     min_confidence: float = 0.999
     """An answer is ``localized`` when its confidence is at least this: when it looks surer than this
@@ -195,7 +195,7 @@ class DecisionConfig:
 @dataclass(frozen=True)
 class HeadingConfig:
     """Which way the queries view the route relative to the map: found from the evidence, a declared
-    camera direction being a prior (see lostx.core.heading)."""
+    camera direction being a prior (see lostx.core.route.heading)."""
 
     declared_prior: float = 0.5
     """Probability given, before any evidence, to the heading a declared camera implies for a vehicle
@@ -213,7 +213,7 @@ class HeadingConfig:
 
 @dataclass(frozen=True)
 class TrackerConfig:
-    """Recursive filter over route position and speed (see lostx.core.tracker)."""
+    """Recursive filter over route position and speed (see lostx.core.route.tracker)."""
 
     enabled: bool = True
     gate_sigma: float = 4.0

@@ -7,7 +7,7 @@
    with the frame's candidates, the nearest map frames of its search and its
    scores, from which it has contrast-normalised costs computed for every
    map frame, or, on a large map (``sequence.costs``), only where it looks
-   (:mod:`lostx.core.costs`); its best trajectory gives the position and speed;
+   (:mod:`lostx.core.match.costs`); its best trajectory gives the position and speed;
 3. the route tracker (:class:`RouteTracker`, a Kalman filter), which gates
    implausible jumps, narrows the speeds searched next, and restarts after a
    genuine jump.
@@ -24,10 +24,10 @@ The margin, what the confidence is calibrated from:
   best trajectory ending more than ``sequence.exclusion`` reference frames away,
   in units of the frames' contrast-normalised costs (standard deviations);
 - single frame (``sequence.enabled = False``): the verified uniqueness
-  1 - s_best / s_alt of :func:`lostx.core.matcher.uniqueness`.
+  1 - s_best / s_alt of :func:`lostx.core.match.matcher.uniqueness`.
 
 Confidence, in [0, 1]: the margin's rank among the margins of wrong answers
-measured on the map itself (:mod:`lostx.core.calibration`); 0 while warming up
+measured on the map itself (:mod:`lostx.core.decide.calibration`); 0 while warming up
 and when the tracker replaces the answer by its prediction.
 
 State: ``localized`` when the confidence reaches ``decision.min_confidence``,
@@ -45,24 +45,25 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from typing import Callable
 
 import numpy as np
 
 from .backbones import Backbone
-from .calibration import Calibration, calibrate
-from .config import Config, looks_up_costs
-from .costs import EveryFrameCosts, LookedUpCosts
+from .config import Config, HeadingConfig, TrackerConfig, looks_up_costs
+from .decide.calibration import UNCALIBRATED, Calibration, load, settings_key, store
+from .decide.estimate import Candidate, Estimate, Evidence
+from .describe.inputcheck import InputCheck
 from .errors import InputError
-from .estimate import Candidate, Estimate, Evidence
 from .frame import Frame, Heading
-from .heading import HeadingFilter
 from .images import check_frame
-from .inputcheck import InputCheck
-from .matcher import FrameMatch, MatchResult, PlaceMatcher
-from .refmap import ReferenceMap
-from .sequence import SequenceFilter, signed
-from .tracker import RouteTracker
-from .verify import verify
+from .maps.refmap import ReferenceMap
+from .match.costs import EveryFrameCosts, LookedUpCosts
+from .match.matcher import FrameMatch, MatchResult, PlaceMatcher
+from .match.verify import verify
+from .route.heading import HeadingFilter
+from .route.sequence import SequenceFilter, signed
+from .route.tracker import RouteTracker
 
 WINDOW_PICTURE_WIDTH = 15
 
@@ -85,10 +86,10 @@ class Localizer:
                                                  lost=dataclasses.replace(matcher_config.lost, coverage_frames=0))
         self.matcher = PlaceMatcher(refmap, matcher_config, backbone)
         if calibration is None:
-            calibration = refmap.calibration(self.config)
+            calibration = load(refmap.path, self.config)
             if calibration is None:
                 calibration = calibrate(refmap, self.config, self.matcher.backbone)
-                refmap.store_calibration(calibration)
+                store(refmap.path, calibration)
         self.calibration = calibration
         seq = self.config.sequence
         costs = LookedUpCosts if looks_up_costs(seq, refmap.n_frames) else EveryFrameCosts
@@ -276,3 +277,46 @@ def _candidates(result: MatchResult) -> list[Candidate]:
         for i, (c, d, s) in enumerate(zip(result.candidates, result.distances, result.scores))
     ]
 
+
+def calibrate(refmap: ReferenceMap, config: Config, backbone: Backbone | None = None,
+              progress: Callable[[int], None] | None = None) -> Calibration:
+    """The map's calibration for these settings (:mod:`lostx.core.decide.calibration`): up to
+    ``decision.calibration_frames`` map frames matched against the map, neighbourhood excluded, through a
+    localizer of their own.
+
+    Longer maps are sampled in stretches spread over the route (each stretch long enough to fill the
+    sequence window several times), so that the sequence filter sees a traverse as it would live.
+    """
+    seq = config.sequence
+    # The map views the route the way it was built; the raw margins are wanted, not the tracker's gate.
+    quiet = dataclasses.replace(config, heading=HeadingConfig(declared_prior=1.0),
+                                tracker=TrackerConfig(enabled=False),
+                                sequence=dataclasses.replace(seq, enabled=True))
+    sequence_margins: list[float] = []
+    single: list[float] = []
+    for stretch in _stretches(refmap.n_frames, config.decision.calibration_frames, 4 * seq.length):
+        localizer = Localizer(refmap, quiet, backbone, calibration=UNCALIBRATED)
+        for index in stretch:
+            matches = localizer.matcher.match_reference(int(index), seq.exclusion)
+            if matches is None:
+                continue
+            frame = Frame(id=int(index), image=_NO_PIXELS, camera=refmap.camera)  # type: ignore[arg-type]
+            estimate = localizer.update(frame, matches)
+            single.append(matches.same.confidence)
+            if not estimate.warming_up and estimate.margin is not None and np.isfinite(estimate.margin):
+                sequence_margins.append(estimate.margin)
+            if progress is not None:
+                progress(1)
+    return Calibration(np.sort(np.asarray(sequence_margins)), np.sort(np.asarray(single)), settings_key(config))
+
+
+def _stretches(n_frames: int, budget: int, length: int) -> list[np.ndarray]:
+    if n_frames <= budget:
+        return [np.arange(n_frames)]
+    length = min(length, budget)
+    count = max(1, budget // length)
+    starts = np.linspace(0, n_frames - length, count).astype(np.int64)
+    return [np.arange(start, start + length) for start in starts]
+
+
+_NO_PIXELS = np.zeros((1, 1, 3), np.uint8)

@@ -34,16 +34,16 @@ from tqdm import tqdm
 from lostx.core.backbones import Backbone, load_backbone
 from lostx.core.build import build_map
 from lostx.core.config import Config
-from lostx.core.scores import MapScores
-from lostx.core.describe import LostDescriber
+from lostx.core.match.scores import MapScores
+from lostx.core.describe.describer import LostDescriber
 from lostx.core.errors import InputError, MapError
 from lostx.core.frame import Frame
-from lostx.core.keypoints import KeypointEvidence
+from lostx.core.describe.keypoints import KeypointEvidence
 from lostx.core.localizer import Localizer
-from lostx.core.matcher import FrameMatch, MatchResult, PlaceMatcher, QueryDescription, uniqueness
-from lostx.core.refmap import ReferenceMap
-from lostx.core.search import cosine_distances, top_k
-from lostx.core.thumbnail import ThumbnailDescriber
+from lostx.core.match.matcher import FrameMatch, MatchResult, PlaceMatcher, QueryDescription, uniqueness
+from lostx.core.maps.refmap import ReferenceMap
+from lostx.core.match.search import cosine_distances, top_k
+from lostx.core.describe.thumbnail import ThumbnailDescriber
 from lostx.replay.folder import Traverse
 
 from .catalogue import METHODS, MODES

@@ -6,7 +6,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from lostx.stream.protocol import Result, Stats
+    from lostx.stream.messages import Result, Stats
 
 
 def state_label(result: Result) -> str:

@@ -19,7 +19,7 @@ from lostx.core.config import Config, load_config
 DEFAULTS = Config()
 
 if TYPE_CHECKING:
-    from lostx.core.refmap import ReferenceMap
+    from lostx.core.maps.refmap import ReferenceMap
     from lostx.viz.sink import RerunSink
 
 

@@ -15,7 +15,7 @@ _EXPORTS = {
     **dict.fromkeys(("ProtocolError", "StreamError"), ".errors"),
     **dict.fromkeys(("Journal", "JournalError"), ".journal"),
     "FramePublisher": ".producer",
-    **dict.fromkeys(("ErrorMessage", "Limits", "Result", "ResultCandidate", "Stats", "Tag"), ".protocol"),
+    **dict.fromkeys(("ErrorMessage", "Limits", "Result", "ResultCandidate", "Stats", "Tag"), ".messages"),
     "LocalizerService": ".service",
     **dict.fromkeys(("JsonlSink", "Sink"), ".sinks"),
     **dict.fromkeys(("ClientKeys", "ServerKeys", "make_keys"), ".sockets"),

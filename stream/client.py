@@ -25,10 +25,10 @@ from typing import Iterator, Sequence
 
 import zmq
 
-from . import protocol as wire
+from . import wire
 from .errors import ProtocolError, StreamError
 from .history import HistoryClient
-from .protocol import Limits, Published, Result, Stats, Tag
+from .messages import TOPICS, Limits, Published, Result, Stats, Tag
 from .sockets import ClientKeys, connect, history_endpoint
 
 LISTENER_LIMITS = Limits(max_message_bytes=1024 * 1024)
@@ -64,7 +64,7 @@ class Listener:
         journaled answer numbered above it first; ``journal``: the id of the journal that
         number belongs to, where known (another journal is then read from its start).
         """
-        unknown = [t for t in topics if t.encode() not in wire.TOPICS]
+        unknown = [t for t in topics if t.encode() not in TOPICS]
         if unknown:
             raise ValueError(f"unknown topic(s) {', '.join(unknown)}; known: result, error, stats")
         self.endpoint = endpoint

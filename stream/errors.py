@@ -12,7 +12,7 @@ class StreamError(LostxError):
 class ProtocolError(InputError):
     """A message that breaks the wire protocol (docs/protocol.md).
 
-    ``code`` is one of :data:`lostx.stream.protocol.ERROR_CODES`; ``frame_id`` is the frame's id
+    ``code`` is one of :data:`lostx.stream.messages.ERROR_CODES`; ``frame_id`` is the frame's id
     where it could be read from the message, else ``None``. The service answers the peer with
     both, so the sender learns which frame was refused and why.
     """

@@ -1,4 +1,5 @@
-"""A listener's end of the history channel: the journaled answers after a sequence number.
+"""The history channel: the journaled answers after a sequence number, fetched by a listener and served
+by the service from its journal.
 
 This is the ZeroMQ guide's Clone pattern, with the journal as the snapshot: a
 listener subscribes to the results first, then asks the service's history
@@ -11,14 +12,20 @@ until the timeout.
 from __future__ import annotations
 
 import time
+from collections import Counter
 
 import zmq
 
-from . import protocol as wire
+from . import wire
 from .errors import ProtocolError, StreamError
-from .protocol import Fetch, History, Limits
+from .journal import Journal, JournalError
+from .messages import MAX_FETCH, ErrorMessage, Fetch, History, Limits
 from .sockets import ClientKeys, connect
 
+HISTORY_BYTES = 512 * 1024
+"""Most payload bytes in one history reply (listeners refuse messages over 1 MiB)."""
+HISTORY_LIMITS = Limits(max_message_bytes=4096)
+"""A fetch request is a few bytes."""
 RETRY_S = 1.0
 """How long to wait for a reply before asking again."""
 REPLY_LIMITS = Limits(max_message_bytes=1024 * 1024)
@@ -43,7 +50,7 @@ class HistoryClient:
     def fetch(self, after: int, count: int) -> History:
         """Up to ``count`` answers after ``after``; :class:`StreamError` if the service does not answer
         within the timeout or refuses the request."""
-        request = wire.encode_fetch(Fetch(after, min(count, wire.MAX_FETCH)))
+        request = wire.encode_fetch(Fetch(after, min(count, MAX_FETCH)))
         deadline = time.monotonic() + self.timeout
         while time.monotonic() < deadline:
             try:
@@ -58,7 +65,7 @@ class HistoryClient:
                     reply = wire.decode_history(self._socket.recv(), REPLY_LIMITS)
                 except ProtocolError:
                     continue  # the service is not trusted either
-                if isinstance(reply, wire.ErrorMessage):
+                if isinstance(reply, ErrorMessage):
                     raise StreamError(f"the history at {self.endpoint} refused: {reply.code}: {reply.text}")
                 if reply.after == after:
                     return reply
@@ -70,3 +77,31 @@ class HistoryClient:
             self._socket.close(linger=0)
             self._socket = None  # type: ignore[assignment]
         self._context.term()
+
+
+def serve_history(socket: zmq.Socket, journal: Journal, session: str, errors: Counter[str]) -> None:
+    """Answer the fetch requests waiting on the service's history ``socket`` (a ROUTER) from ``journal``,
+    which serves only what is durable; refusals are counted in ``errors`` by code."""
+    for _ in range(100):
+        try:
+            parts = socket.recv_multipart(zmq.NOBLOCK)
+        except zmq.Again:
+            return
+        identity, body = parts[0], parts[1:]
+        try:
+            if len(body) != 1:
+                raise ProtocolError("multipart", f"expected one message part, got {len(body)}")
+            fetch = wire.decode_fetch(body[0], HISTORY_LIMITS)
+            items = journal.read(fetch.after, fetch.max, HISTORY_BYTES)
+            reply = wire.encode_history(History(session, journal.id, fetch.after, journal.first, journal.last,
+                                                tuple(items)))
+        except ProtocolError as exc:
+            errors[exc.code] += 1
+            reply = wire.encode_error(ErrorMessage(exc.code, exc.text, None, session))
+        except (JournalError, OSError) as exc:
+            errors["journal_failed"] += 1
+            reply = wire.encode_error(ErrorMessage("journal_failed", str(exc), None, session))
+        try:
+            socket.send_multipart([identity, reply], zmq.NOBLOCK)
+        except zmq.ZMQError:
+            pass  # the listener is gone or not reading; it asks again

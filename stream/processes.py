@@ -17,7 +17,6 @@ import time
 from pathlib import Path
 from typing import IO, Sequence
 
-
 EXIT_WITH_PARENT = "LOSTX_EXIT_WITH_PARENT"
 
 

@@ -26,9 +26,9 @@ from zmq.utils.monitor import recv_monitor_message
 
 from lostx.core.frame import Frame
 
-from . import protocol as wire
+from . import wire
 from .errors import ProtocolError, StreamError
-from .protocol import Ack, ErrorMessage, Limits, Ready
+from .messages import Ack, ErrorMessage, Limits, Ready, Reply
 from .sockets import ClientKeys, connect
 
 HELLO_RETRY_S = 0.5
@@ -239,7 +239,7 @@ class FramePublisher:
                 self._resend_all()
                 self._hello()
 
-    def _on_reply(self, reply: wire.Reply) -> None:
+    def _on_reply(self, reply: Reply) -> None:
         if isinstance(reply, Ready):
             self.ready = reply
             if not self.counts.sessions or self.counts.sessions[-1] != reply.session:

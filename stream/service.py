@@ -8,13 +8,11 @@ are catching up, publishes stats, and hands one frame at a time to the
 :class:`~lostx.stream.worker.Worker`, which steps the localizer of that
 frame's stream and calls the sinks.
 
-``live`` mode keeps one slot per stream: a newer frame of a stream replaces the
-one waiting there (counted as dropped), so a slow localizer always starts on a
-stream's newest frame, and the streams waiting take turns. ``lossless`` mode
-keeps a FIFO and answers every frame in order; producers are held back by
-credit (docs/protocol.md), the FIFO is bounded, and answers wait for a slow
-listener (XPUB_NODROP) instead of being dropped, which pauses the worker and,
-through the credit, the producers.
+``live`` mode answers each stream's newest frame and drops older ones waiting;
+``lossless`` mode answers every frame in order (:mod:`lostx.stream.schedule`);
+there producers are held back by credit (docs/protocol.md), the queue is
+bounded, and answers wait for a slow listener (XPUB_NODROP) instead of being
+dropped, which pauses the worker and, through the credit, the producers.
 
 Every answer (a result, or the error that answers a frame) gets the next
 sequence number. With a journal, an answer is written there and made durable
@@ -46,17 +44,19 @@ import zmq
 from lostx.core.config import StreamConfig
 from lostx.core.localizer import Localizer
 
-from . import protocol as wire
+from . import wire
 from .errors import ProtocolError, StreamError
+from .history import HISTORY_LIMITS, serve_history
 from .journal import Journal, JournalError
 from .journal_writer import JournalWriter
-from .protocol import Ack, ErrorMessage, FrameMessage, Hello, History, JournalInfo, Limits, Ready, Stats, Tag
+from .messages import Ack, ErrorMessage, Hello, JournalInfo, Limits, Ready, Stats, Tag
+from .schedule import FrameSchedule, frame_key
 from .sinks import Sink, close_sink
 from .sockets import (
     ServerKeys, apply_server_keys, bind, check_bind_endpoint, history_endpoint, keep_alive, start_authenticator,
 )
 from .stats import ServiceCounters
-from .streams import AnsweredIds, StreamTable, check_time
+from .streams import StreamTable, check_time
 from .worker import Answer, Job, Worker
 
 READ_BATCH = 10_000
@@ -69,10 +69,6 @@ PRODUCER_ACTIVE_S = 10.0
 """A producer counts as connected in stats while it sent something this recently."""
 JOURNAL_TAIL = 4096
 """Answers read back from the journal at start, to recognise frames the previous service answered."""
-HISTORY_BYTES = 512 * 1024
-"""Most payload bytes in one history reply (listeners refuse messages over 1 MiB)."""
-HISTORY_LIMITS = Limits(max_message_bytes=4096)
-"""A fetch request is a few bytes."""
 MAX_STREAMS = 256
 """Upper limit of max_streams: the per-stream stats must fit one message map."""
 
@@ -160,8 +156,7 @@ class LocalizerService:
         self._worker: Worker | None = None
         self._writer: JournalWriter | None = None
         self._busy: Job | None = None  # the job the worker has in hand
-        self._slots: dict[str, Job] = {}  # live: each stream's newest frame not yet started, in turn order
-        self._queue: deque[Job] = deque()  # lossless: frames in order
+        self._schedule = FrameSchedule(self.lossless)
         self._outgoing: deque[_Outgoing] = deque()
         # Journaled answers' replies, sent once the answer is durable: (seq, producer, reply, frame key).
         self._acks: deque[tuple[int, bytes, bytes, tuple[str, int] | None]] = deque()
@@ -169,8 +164,6 @@ class LocalizerService:
         self._subscriptions: Counter[bytes] = Counter()
         self._producers: dict[bytes, float] = {}
         self._waiting: set[bytes] = set()  # producers owed a ready
-        self._answered = AnsweredIds()  # lossless: to recognise resent frames
-        self._unacked: set[tuple[str, int]] = set()  # lossless: taken, not yet acknowledged
         self._next_seq = 1
         self._published_seq = 0
         self._last_answered: int | None = None
@@ -251,7 +244,7 @@ class LocalizerService:
         for payload in self.journal.tail(JOURNAL_TAIL):
             key = _journaled_key(payload)
             if key is not None:
-                self._answered.add(key)
+                self._schedule.answered.add(key)
 
     def stop(self, reason: str = "stop requested") -> None:
         """Finish the frame in hand, flush, and return from :meth:`run`. Safe in signal handlers."""
@@ -312,7 +305,7 @@ class LocalizerService:
         """One turn of the loop: wait for something, then read, answer, dispatch, commit, publish."""
         assert self._frames is not None and self._results is not None and self._wake is not None
         poller = zmq.Poller()
-        read_frames = not self.lossless or len(self._queue) < self.config.queue
+        read_frames = not self.lossless or len(self._schedule) < self.config.queue
         if read_frames:
             poller.register(self._frames, zmq.POLLIN)
         poller.register(self._results, zmq.POLLIN)
@@ -366,28 +359,16 @@ class LocalizerService:
         self._worker.jobs.put(job)
 
     def _next_job(self) -> Job | None:
-        """Lossless: the oldest frame not answered before; live: the newest frame of the next stream."""
-        if not self.lossless:
-            if not self._slots:
-                return None
-            return self._slots.pop(next(iter(self._slots)))
-        while self._queue:
-            job = self._queue.popleft()
-            key = _key(job.message)
-            if key is None or key not in self._answered:
-                if key is not None:
-                    self._answered.add(key)
-                    self._unacked.add(key)
-                return job
-            # A producer resent, after a reconnection, a frame already answered (by this service, or by
-            # the one before it, as the journal shows): answer it once. If its ack may have been lost,
-            # acknowledge again; if the ack is still to come, it goes with the answer.
-            self.counters.duplicates += 1
-            job.stream.counts.duplicates += 1
-            job.stream.in_service -= 1
-            if key not in self._unacked:
-                self._reply(job.identity, wire.encode_ack(Ack(self.session, job.message.id)))
-        return None
+        return self._schedule.next(self._resent)
+
+    def _resent(self, job: Job, ack_again: bool) -> None:
+        """A producer resent, after a reconnection, a frame already answered: answer it once. If its ack may
+        have been lost, acknowledge again; if the ack is still to come, it goes with the answer."""
+        self.counters.duplicates += 1
+        job.stream.counts.duplicates += 1
+        job.stream.in_service -= 1
+        if ack_again:
+            self._reply(job.identity, wire.encode_ack(Ack(self.session, job.message.id)))
 
     def _admit_time(self, job: Job) -> bool:
         """Check the frame's timestamp against its stream's; a refused frame is answered with the error."""
@@ -447,7 +428,7 @@ class LocalizerService:
             topic = b"error"
             payload = reply = wire.encode_error(ErrorMessage(answer.code, answer.text, job.message.id, self.session,
                                                              tag))
-        key = _key(job.message) if self.lossless else None
+        key = frame_key(job.message) if self.lossless else None
         if self._writer is not None:
             # Journaled: acknowledged as soon as it is durable, whether or not a listener has it.
             self._writer.write(seq, payload)
@@ -482,13 +463,13 @@ class LocalizerService:
             _, identity, reply, key = self._acks.popleft()
             self._reply(identity, reply)
             if key is not None:
-                self._unacked.discard(key)
+                self._schedule.unacked.discard(key)
         self._flush()
 
     def _read_frames(self) -> None:
         assert self._frames is not None
         for _ in range(READ_BATCH):
-            if self.lossless and len(self._queue) >= self.config.queue:
+            if self.lossless and len(self._schedule) >= self.config.queue:
                 return  # leave the rest in the socket: ZeroMQ and TCP hold the producer back
             try:
                 # copy=False: decode straight from ZeroMQ's buffer (frames are megabytes).
@@ -522,16 +503,10 @@ class LocalizerService:
         state.counts.received += 1
         self.counters.missing += state.saw(message.id)
         state.in_service += 1
-        job = Job(identity, message, now, state)
-        if self.lossless:
-            self._queue.append(job)
-            return
-        superseded = self._slots.get(state.name)
-        if superseded is not None:
+        if self._schedule.add(Job(identity, message, now, state)) is not None:
             self.counters.dropped += 1
             state.counts.dropped += 1
             state.in_service -= 1
-        self._slots[state.name] = job  # a stream waiting already keeps its turn
 
     def _ready(self) -> Ready:
         window = self.config.window if self.lossless else 0
@@ -556,31 +531,8 @@ class LocalizerService:
         return sum(n for topic, n in self._subscriptions.items() if b"result".startswith(topic))
 
     def _serve_history(self) -> None:
-        """Answer listeners' fetch requests from the journal (it serves only what is durable)."""
         assert self._history is not None and self.journal is not None
-        for _ in range(100):
-            try:
-                parts = self._history.recv_multipart(zmq.NOBLOCK)
-            except zmq.Again:
-                return
-            identity, body = parts[0], parts[1:]
-            try:
-                if len(body) != 1:
-                    raise ProtocolError("multipart", f"expected one message part, got {len(body)}")
-                fetch = wire.decode_fetch(body[0], HISTORY_LIMITS)
-                items = self.journal.read(fetch.after, fetch.max, HISTORY_BYTES)
-                reply = wire.encode_history(History(self.session, self.journal.id, fetch.after, self.journal.first,
-                                                    self.journal.last, tuple(items)))
-            except ProtocolError as exc:
-                self.counters.errors[exc.code] += 1
-                reply = wire.encode_error(ErrorMessage(exc.code, exc.text, None, self.session))
-            except (JournalError, OSError) as exc:
-                self.counters.errors["journal_failed"] += 1
-                reply = wire.encode_error(ErrorMessage("journal_failed", str(exc), None, self.session))
-            try:
-                self._history.send_multipart([identity, reply], zmq.NOBLOCK)
-            except zmq.ZMQError:
-                pass  # the listener is gone or not reading; it asks again
+        serve_history(self._history, self.journal, self.session, self.counters.errors)
 
     # -- sending -------------------------------------------------------------------------------
 
@@ -626,7 +578,7 @@ class LocalizerService:
             if item.reply is not None:
                 self._reply(item.reply_to, item.reply)
             if item.key is not None:
-                self._unacked.discard(item.key)
+                self._schedule.unacked.discard(item.key)
             self.counters.service_ms.add(1e3 * (time.monotonic() - item.received))
 
     # -- stats and shutdown --------------------------------------------------------------------
@@ -649,7 +601,7 @@ class LocalizerService:
             session=self.session, mode=self.config.mode, uptime_s=c.uptime, received=c.received,
             answered=c.answered, dropped=c.dropped, missing=c.missing, duplicates=c.duplicates,
             errors=sum(c.errors.values()), errors_by_code=by_code,
-            queued_frames=len(self._queue) + len(self._slots), queued_results=len(self._outgoing),
+            queued_frames=len(self._schedule), queued_results=len(self._outgoing),
             listeners=self._listeners(), producers=len(self._producers),
             latency_ms={"step": c.step_ms.summary(), "service": c.service_ms.summary()}, final=final,
             seq=self._published_seq, journal=journal, streams=self.streams.stats(now),
@@ -665,7 +617,7 @@ class LocalizerService:
     def _shutdown(self) -> Stats:
         """Flush what is answered (within ``linger``), publish the final stats, close."""
         if self._stop.is_set():
-            unanswered = len(self._queue) + len(self._slots)
+            unanswered = len(self._schedule)
             last = f"last answered frame {self._last_answered}, " if self._last_answered is not None else ""
             self.log(f"{self._stop_reason}: {last}stopping after {self.counters.answered} answers"
                      + (f"; {unanswered} queued frame(s) left unanswered" if unanswered else ""))
@@ -698,12 +650,6 @@ class LocalizerService:
         # ZeroMQ finishes sending what it has taken within what is left of the linger time.
         self.close(linger_ms=max(0, int(1e3 * (deadline - time.monotonic()))))
         return final
-
-
-def _key(message: FrameMessage) -> tuple[str, int] | None:
-    """A frame's identity for recognising resends: only a frame that names its stream has one
-    (without a stream id a new run's frame 0 and a resent frame 0 look alike)."""
-    return (message.stream, message.id) if message.stream else None
 
 
 def _journaled_key(payload: bytes) -> tuple[str, int] | None:

@@ -13,7 +13,7 @@ import json
 from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 
-from lostx.core.estimate import Estimate
+from lostx.core.decide.estimate import Estimate
 from lostx.core.frame import Frame
 
 

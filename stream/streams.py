@@ -19,10 +19,10 @@ from typing import Callable, Iterator, Literal
 from lostx.core.backbones import Backbone
 from lostx.core.config import Config
 from lostx.core.localizer import Localizer
-from lostx.core.refmap import ReferenceMap
+from lostx.core.maps.refmap import ReferenceMap
 
 from .errors import ProtocolError
-from .protocol import StreamStats
+from .messages import StreamStats
 
 
 def localizer_factory(refmap: ReferenceMap, config: Config, backbone: Backbone | None = None) -> Callable[[], Localizer]:

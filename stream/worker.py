@@ -18,12 +18,12 @@ from typing import Callable, Sequence
 
 import zmq
 
+from lostx.core.decide.estimate import Estimate
 from lostx.core.errors import LostxError
-from lostx.core.estimate import Estimate
 from lostx.core.frame import Frame
 
 from .errors import ProtocolError
-from .protocol import FrameMessage
+from .messages import FrameMessage
 from .sinks import Sink
 from .streams import StreamState
 

@@ -42,8 +42,8 @@ def mosaic():
 def day_map(tmp_path_factory, robotcar, mosaic):
     """A LoST map of the ten RobotCar day frames, built with the default settings."""
     from lostx.core.build import build_map
-    from lostx.core.describe import LostDescriber
-    from lostx.core.refmap import ReferenceMap
+    from lostx.core.describe.describer import LostDescriber
+    from lostx.core.maps.refmap import ReferenceMap
     from lostx.replay.folder import folder_traverse
 
     out = tmp_path_factory.mktemp("maps") / "day"

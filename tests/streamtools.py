@@ -13,7 +13,7 @@ import pytest
 
 from lostx.stream.client import Listener
 from lostx.stream.processes import ProcessGroup, lostx_command
-from lostx.stream.protocol import ErrorMessage, Result, Stats
+from lostx.stream.messages import ErrorMessage, Result, Stats
 
 __all__ = ["ProcessGroup", "lostx_command", "free_port", "endpoints", "Collector", "read_jsonl", "wait_for",
            "procs", "thumb_map", "nordland_subset", "link_frames", "winter_runs"]
@@ -124,8 +124,8 @@ def procs(tmp_path):
 def thumb_map(tmp_path_factory, nordland):
     """SeqSLAM thumbnail map of the 3576 Nordland summer frames (no network: about a second)."""
     from lostx.core.build import build_map
-    from lostx.core.refmap import ReferenceMap
-    from lostx.core.thumbnail import ThumbnailDescriber
+    from lostx.core.maps.refmap import ReferenceMap
+    from lostx.core.describe.thumbnail import ThumbnailDescriber
     from lostx.replay.folder import folder_traverse
 
     out = tmp_path_factory.mktemp("maps") / "summer"

@@ -16,12 +16,12 @@ from lostx.core.backbones import BackboneInfo, SemanticFrame, load_backbone, pre
 from lostx.core.backbones.espnet import CITYSCAPES_CLASSES
 from lostx.core.backbones.mosaic import ADE20K_CLASSES
 from lostx.core.config import BackboneConfig, LostConfig
-from lostx.core.coverage import ClassCoverageWarning, coverage_message
-from lostx.core.describe import LostDescriber
+from lostx.core.describe.coverage import ClassCoverageWarning, coverage_message
+from lostx.core.describe.describer import LostDescriber
 from lostx.core.errors import InputError, MapError, ModelError
-from lostx.core.keypoints import frame_evidence
-from lostx.core.mapwriter import MapFrame, MapWriter
-from lostx.core.refmap import ReferenceMap
+from lostx.core.describe.keypoints import frame_evidence
+from lostx.core.maps.mapwriter import MapFrame, MapWriter
+from lostx.core.maps.refmap import ReferenceMap
 from lostx.replay.folder import folder_traverse
 
 

@@ -8,9 +8,10 @@ import numpy as np
 import pytest
 
 from lostx.core import Config, Localizer, ReferenceMap, build_map
-from lostx.core.calibration import CALIBRATION_FILE, Calibration, calibrate, load, settings_key
 from lostx.core.config import DecisionConfig, SequenceConfig
-from lostx.core.thumbnail import ThumbnailDescriber
+from lostx.core.decide.calibration import CALIBRATION_FILE, Calibration, load, settings_key
+from lostx.core.describe.thumbnail import ThumbnailDescriber
+from lostx.core.localizer import calibrate
 from lostx.replay.folder import folder_traverse
 
 
@@ -33,9 +34,8 @@ def stretch_map(tmp_path_factory, nordland) -> ReferenceMap:
 
 
 def test_the_build_stores_a_calibration_for_its_settings(stretch_map):
-    stored = load(stretch_map.path, settings_key(Config()))
+    stored = load(stretch_map.path, Config())
     assert stored is not None
-    assert stretch_map.calibration(Config()) is not None
     # One impostor per frame in single-frame mode; sequence margins once the window is full.
     assert len(stored.single) == 400
     assert len(stored.sequence) == 400 - (Config().sequence.length - 1)
@@ -44,11 +44,11 @@ def test_the_build_stores_a_calibration_for_its_settings(stretch_map):
 
 def test_other_settings_are_measured_again_and_kept(stretch_map):
     config = Config(sequence=SequenceConfig(length=10))
-    assert stretch_map.calibration(config) is None
+    assert load(stretch_map.path, config) is None
     localizer = Localizer(stretch_map, config)
     assert localizer.calibration.settings == settings_key(config)
-    assert stretch_map.calibration(config) is not None  # stored beside the map for next time
-    assert stretch_map.calibration(Config()) is not None  # beside the build's own
+    assert load(stretch_map.path, config) is not None  # stored beside the map for next time
+    assert load(stretch_map.path, Config()) is not None  # beside the build's own
     # The tracker and the decision threshold do not change what wrong answers look like.
     assert settings_key(dataclasses.replace(config, decision=DecisionConfig(min_confidence=0.5))) == \
         settings_key(config)
@@ -71,6 +71,6 @@ def test_a_map_too_short_to_calibrate_never_claims_to_be_sure(stretch_map):
 
 def test_a_damaged_calibration_file_is_measured_again(stretch_map):
     (stretch_map.path / CALIBRATION_FILE).write_text("{not json")
-    assert stretch_map.calibration(Config()) is None
+    assert load(stretch_map.path, Config()) is None
     Localizer(stretch_map, Config())
-    assert stretch_map.calibration(Config()) is not None
+    assert load(stretch_map.path, Config()) is not None

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lostx.core.costs import EveryFrameCosts, HubNormaliser, LookedUpCosts, contrast_normalise
-from lostx.core.scores import MapScores
+from lostx.core.match.costs import EveryFrameCosts, HubNormaliser, LookedUpCosts, contrast_normalise
+from lostx.core.match.scores import MapScores
 
 
 def contrast_by_hand(scores: np.ndarray, window: int) -> np.ndarray:
@@ -150,7 +150,7 @@ def test_hub_normaliser_removes_a_hub(rng):
 
 def test_a_step_looks_up_as_many_scores_whatever_the_map_size():
     """The same traverse through a map of 100,000 frames and one of 1,000,000: as many scores computed."""
-    from lostx.core.sequence import SequenceFilter, signed
+    from lostx.core.route.sequence import SequenceFilter, signed
 
     computed = {}
     for n_refs in (100_000, 1_000_000):

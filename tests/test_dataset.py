@@ -11,8 +11,8 @@ import pytest
 
 from lostx.core.errors import InputError
 from lostx.evaluation.metrics import evaluate
-from lostx.core.search import sad_distances, top_k
-from lostx.core.thumbnail import ThumbnailDescriber
+from lostx.core.match.search import sad_distances, top_k
+from lostx.core.describe.thumbnail import ThumbnailDescriber
 from lostx.evaluation.datasets import open_pair, shared_positions
 from lostx.replay.dataset import detect_format, open_traverse
 from lostx.replay.folder import Traverse

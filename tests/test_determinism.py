@@ -11,10 +11,10 @@ from __future__ import annotations
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from lostx.core.describe import LostDescriber
+from lostx.core.describe.describer import LostDescriber
 from lostx.core.localizer import Localizer
-from lostx.core.lost import standardise
-from lostx.core.search import cosine_distances
+from lostx.core.describe.lost import standardise
+from lostx.core.match.search import cosine_distances
 from lostx.replay.folder import folder_traverse
 
 

@@ -6,7 +6,7 @@ import dataclasses
 
 from lostx.commands.listen import format_result
 from lostx.display import drop_line, state_label, warm_up_line
-from lostx.stream.protocol import Result, Stats, Tag
+from lostx.stream.messages import Result, Stats, Tag
 
 RESULT = Result(frame_id=3, timestamp=None, state="not_localized", match_index=2, match_name="0000040.png",
                 position=None, confidence=0.0, score=0.4, single_match_index=2, candidates=(), sequence_score=1.5,

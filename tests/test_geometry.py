@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 from lostx.core import Config, ReferenceMap, build_map
-from lostx.core.camera import Geometry, cut_rows, fit_aspect, narrow_to_fov
+from lostx.core.describe.camera import Geometry, cut_rows, fit_aspect, narrow_to_fov
 from lostx.core.config import BackboneConfig, CameraConfig
-from lostx.core.describe import LostDescriber
+from lostx.core.describe.describer import LostDescriber
 from lostx.core.errors import InputError
-from lostx.core.matcher import PlaceMatcher
+from lostx.core.match.matcher import PlaceMatcher
 from lostx.replay.folder import folder_traverse
 
 

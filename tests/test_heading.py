@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 
 from lostx.core.config import HeadingConfig
-from lostx.core.heading import HeadingFilter, TwoStateFilter
-from lostx.core.keypoints import frame_evidence
-from lostx.core.matcher import heading_vote
-from lostx.core.verify import verify
+from lostx.core.route.heading import HeadingFilter, TwoStateFilter
+from lostx.core.describe.keypoints import frame_evidence
+from lostx.core.match.matcher import heading_vote
+from lostx.core.match.verify import verify
 
 
 def _image(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:

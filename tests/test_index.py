@@ -11,9 +11,9 @@ from lostx.cli import main
 from lostx.core import ReferenceMap, build_map
 from lostx.core.config import SearchConfig
 from lostx.core.errors import MapError
-from lostx.core.indexcheck import index_recall, sample_frames
-from lostx.core.search import CandidateSearch
-from lostx.core.thumbnail import ThumbnailDescriber
+from lostx.core.match.indexcheck import index_recall, sample_frames
+from lostx.core.match.search import CandidateSearch
+from lostx.core.describe.thumbnail import ThumbnailDescriber
 from lostx.replay.folder import folder_traverse
 
 

@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-from lostx.core.inputcheck import InputCheck, InputProfile, InputWarning, ProfileBuilder, looks
+from lostx.core.describe.inputcheck import InputCheck, InputProfile, InputWarning, ProfileBuilder, looks
 from lostx.core.localizer import Localizer
 from lostx.replay.folder import folder_traverse
 
@@ -123,7 +123,7 @@ def test_real_frames(day_map, robotcar, nordland, tmp_path):
 
 def test_after_the_first_frames_one_in_every_few_is_checked(colour_profile, rng):
     """Input rarely changes kind mid-stream: a camera covered later is reported at the next checked frame."""
-    from lostx.core.inputcheck import CHECK_EVERY, CHECK_FIRST
+    from lostx.core.describe.inputcheck import CHECK_EVERY, CHECK_FIRST
 
     image, black = street(rng), np.zeros((640, 1024, 3), np.uint8)
     frames = [(image, None)] * CHECK_FIRST + [(black, None)] * CHECK_EVERY

@@ -6,13 +6,13 @@ import numpy as np
 import pytest
 
 from lostx.core.build import _windowed
-from lostx.core.camera import Geometry
+from lostx.core.describe.camera import Geometry
 from lostx.core.config import CameraConfig
-from lostx.core.classes import ClassGroups
-from lostx.core.describe import DescribedFrame, TrailingMeans
+from lostx.core.describe.classes import ClassGroups
+from lostx.core.describe.describer import DescribedFrame, TrailingMeans
 from lostx.core.errors import InputError
 from lostx.core.frame import Frame
-from lostx.core.lost import (
+from lostx.core.describe.lost import (
     DescriptorStats,
     RunningStandardiser,
     centred_window,

@@ -17,7 +17,7 @@ from lostx.core import Config, Localizer, ReferenceMap, build_map
 from lostx.core.config import SearchConfig, SequenceConfig, TrackerConfig
 from lostx.evaluation.groundtruth import index_aligned
 from lostx.evaluation.metrics import evaluate
-from lostx.core.thumbnail import ThumbnailDescriber
+from lostx.core.describe.thumbnail import ThumbnailDescriber
 from lostx.replay.folder import folder_traverse
 
 MODES = {

@@ -13,7 +13,7 @@ import pytest
 
 from lostx.core import Config, Localizer, ReferenceMap, build_map
 from lostx.core.config import SequenceConfig
-from lostx.core.describe import LostDescriber
+from lostx.core.describe.describer import LostDescriber
 from lostx.evaluation.groundtruth import from_positions
 from lostx.replay.dataset import SourceOptions, open_traverse
 

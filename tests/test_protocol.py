@@ -11,13 +11,13 @@ import msgpack
 import numpy as np
 import pytest
 
-from lostx.core.estimate import Candidate, Estimate
+from lostx.core.decide.estimate import Candidate, Estimate
 from lostx.core.frame import Frame
 from lostx.replay.folder import folder_traverse
-from lostx.stream import protocol as wire
+from lostx.stream import messages, wire
 from lostx.stream.errors import ProtocolError
 from lostx.stream.images import header_size
-from lostx.stream.protocol import (
+from lostx.stream.messages import (
     Ack, ErrorMessage, Fetch, Hello, History, JournalInfo, Limits, Ready, Result, Stats, StreamStats, Tag,
 )
 from lostx.stream.sockets import check_bind_endpoint, history_endpoint, is_local_endpoint
@@ -38,7 +38,7 @@ def valid_fields(frame: Frame) -> dict:
 def refused(data: bytes, limits: Limits = LIMITS) -> ProtocolError:
     with pytest.raises(ProtocolError) as info:
         message = wire.decode_request(data, limits)
-        if isinstance(message, wire.FrameMessage):
+        if isinstance(message, messages.FrameMessage):
             message.to_frame()
     return info.value
 
@@ -50,7 +50,7 @@ def refused(data: bytes, limits: Limits = LIMITS) -> ProtocolError:
 def test_lossless_encodings_round_trip_the_exact_frame(night_frame, encoding):
     frame = dataclasses.replace(night_frame, timestamp=12.5, position=(1.0, -2.0), metadata={"k": [1, "a", None]})
     message = wire.decode_request(wire.encode_frame(frame, encoding, stream="run-1"), LIMITS)
-    assert isinstance(message, wire.FrameMessage)
+    assert isinstance(message, messages.FrameMessage)
     got = message.to_frame()
     assert np.array_equal(got.image, frame.image)
     assert (got.id, got.timestamp, got.camera, got.position, got.name) == (3, 12.5, "front", (1.0, -2.0), frame.name)
@@ -69,7 +69,7 @@ def test_jpeg_is_close_and_much_smaller(night_frame):
 
 def test_grey_raw_images_become_three_channels():
     grey = (np.arange(32 * 48) % 251).astype(np.uint8).reshape(32, 48)
-    data = msgpack.packb({"v": wire.VERSION, "type": "frame", "id": 1, "camera": "rear", "encoding": "raw",
+    data = msgpack.packb({"v": messages.VERSION, "type": "frame", "id": 1, "camera": "rear", "encoding": "raw",
                           "image": grey.tobytes(), "shape": [32, 48], "dtype": "uint8"})
     frame = wire.decode_request(data, LIMITS).to_frame()
     assert frame.image.shape == (32, 48, 3) and frame.camera == "rear"
@@ -152,7 +152,7 @@ def test_history_requests_and_replies_round_trip_and_bad_ones_are_refused():
     for message, code in (({"v": 2, "type": "fetch"}, "missing_field"),
                           ({"v": 2, "type": "fetch", "after": -1}, "bad_type"),
                           ({"v": 2, "type": "fetch", "after": 1, "max": 0}, "bad_value"),
-                          ({"v": 2, "type": "fetch", "after": 1, "max": wire.MAX_FETCH + 1}, "bad_value"),
+                          ({"v": 2, "type": "fetch", "after": 1, "max": messages.MAX_FETCH + 1}, "bad_value"),
                           ({"v": 2, "type": "fetch", "after": 1, "from": 3}, "unknown_field"),
                           ({"v": 1, "type": "fetch", "after": 1}, "bad_version"),
                           ({"v": 2, "type": "frame", "after": 1}, "unknown_type")):
@@ -172,9 +172,9 @@ def test_the_history_endpoint_goes_with_the_results_endpoint():
 def test_listener_side_tolerates_new_fields_but_checks_known_ones():
     summary = {**Estimate(1, 0.0, "localized", 2, "a", None, 0.5, 0.1, 2, []).summary(),
                "stream": "", "seq": 1, "stream_seq": 1}
-    data = msgpack.packb({"v": wire.VERSION, "type": "result", **summary, "added_later": [1, 2]})
+    data = msgpack.packb({"v": messages.VERSION, "type": "result", **summary, "added_later": [1, 2]})
     assert wire.decode_published(b"result", data, LIMITS).match_index == 2
-    data = msgpack.packb({"v": wire.VERSION, "type": "result", **summary, "confidence": "high"})
+    data = msgpack.packb({"v": messages.VERSION, "type": "result", **summary, "confidence": "high"})
     with pytest.raises(ProtocolError) as info:
         wire.decode_published(b"result", data, LIMITS)
     assert info.value.code == "bad_type"
@@ -391,7 +391,7 @@ def test_the_bytes_in_the_protocol_doc_are_what_lostx_reads():
     assert len(blocks) >= 4
     for text, hex_bytes in blocks:
         message = msgpack.unpackb(bytes.fromhex(hex_bytes.replace("\n", " ")))
-        assert message["v"] == wire.VERSION
+        assert message["v"] == messages.VERSION
         for key in re.findall(r'"(\w+)":', text):
             assert key in message, (key, text)
         decoded = {"hello": wire.decode_request, "frame": wire.decode_request, "ack": wire.decode_reply,

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from lostx.cli import main
-from lostx.core.mapwriter import EVIDENCE
+from lostx.core.maps.mapwriter import EVIDENCE
 
 ray = pytest.importorskip("ray", reason="the Ray build needs the ray extra: pip install \"lostx[ray]\"")
 

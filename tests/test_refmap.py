@@ -10,9 +10,9 @@ import pytest
 
 from lostx.core.backbones import BackboneInfo, Quantisation
 from lostx.core.errors import MapError
-from lostx.core.keypoints import frame_evidence
-from lostx.core.mapwriter import MapFrame, MapWriter
-from lostx.core.refmap import ReferenceMap
+from lostx.core.describe.keypoints import frame_evidence
+from lostx.core.maps.mapwriter import MapFrame, MapWriter
+from lostx.core.maps.refmap import ReferenceMap
 
 SCALE = 0.05
 

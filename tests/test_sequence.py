@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lostx.core.costs import RingCosts
-from lostx.core.sequence import SequenceFilter, signed
+from lostx.core.match.costs import RingCosts
+from lostx.core.route.sequence import SequenceFilter, signed
 
 SPEEDS = (-1.2, -0.8, 0.0, 0.5, 0.8, 1.0, 1.2, 2.0)
 
@@ -80,8 +80,8 @@ def test_online_equals_batch_on_real_nordland_candidates(nordland):
     from lostx.core import Config, Localizer
     from lostx.core.build import build_map
     from lostx.core.frame import Frame
-    from lostx.core.refmap import ReferenceMap
-    from lostx.core.thumbnail import ThumbnailDescriber
+    from lostx.core.maps.refmap import ReferenceMap
+    from lostx.core.describe.thumbnail import ThumbnailDescriber
     from lostx.replay.folder import folder_traverse
     import tempfile
 

@@ -29,12 +29,12 @@ from lostx.core.frame import Frame
 from lostx.core.localizer import Localizer
 from lostx.replay.folder import folder_traverse
 from lostx.replay.pace import Pace, paced
-from lostx.stream import protocol as wire
+from lostx.stream import messages, wire
 from lostx.stream.client import Listener
 from lostx.stream.errors import ProtocolError, StreamError
 from lostx.stream.journal import Journal
 from lostx.stream.producer import FramePublisher
-from lostx.stream.protocol import ErrorMessage, Limits, Ready, Result
+from lostx.stream.messages import ErrorMessage, Limits, Ready, Result
 from lostx.stream.replay import replay
 from lostx.stream.service import LocalizerService
 from lostx.stream.sockets import ClientKeys
@@ -262,7 +262,7 @@ def fuzz_cases(rng: np.random.Generator, max_bytes: int) -> list[tuple[list[byte
                           "malformed", None))
     for depth in (2000, 10_000, 100_000):
         cases.append(([b"\x81\xa8metadata" + b"\x91" * depth + b"\xc0"], "malformed", None))
-    cases.append(([msgpack.packb({"v": wire.VERSION, "type": "frame", "id": 5, "x": msgpack.ExtType(1, b"abc")})],
+    cases.append(([msgpack.packb({"v": messages.VERSION, "type": "frame", "id": 5, "x": msgpack.ExtType(1, b"abc")})],
                   "malformed", None))
     cases.append(([base, b"second part"], "multipart", None))
     cases.append(([b"", base], "multipart", None))
@@ -341,7 +341,7 @@ def test_fuzz_the_service_answers_every_bad_message_and_stays_up(day_map, robotc
         dealer.send(wire.encode_frame(night0, "raw"))
         assert dealer.poll(60_000)
         ack = wire.decode_reply(dealer.recv(), Limits())
-        assert isinstance(ack, wire.Ack) and ack.frame_id == 0
+        assert isinstance(ack, messages.Ack) and ack.frame_id == 0
         wait_for(lambda: listener.results, 10, "the good frame's result")
         same_answer(listener.results[0].to_dict(), night_expected[0])
         assert procs.stop("serve") == 0
@@ -577,14 +577,14 @@ def test_a_bad_timestamp_refuses_that_frame_only_and_the_stream_goes_on(thumb_ma
     assert isinstance(refusal, ErrorMessage) and refusal.code == "malformed"
 
 
-def _fetch_history(endpoint: str) -> tuple[wire.History, ErrorMessage]:
+def _fetch_history(endpoint: str) -> tuple[messages.History, ErrorMessage]:
     """A fetch after answer 10, and a garbage request, straight on the history socket."""
     context = zmq.Context()
     dealer = context.socket(zmq.DEALER)
     dealer.setsockopt(zmq.LINGER, 0)
     dealer.connect(endpoint)
     try:
-        dealer.send(wire.encode_fetch(wire.Fetch(after=10, max=100)))
+        dealer.send(wire.encode_fetch(messages.Fetch(after=10, max=100)))
         assert dealer.poll(10_000)
         reply = wire.decode_history(dealer.recv(), Limits())
         dealer.send(b"\xc1garbage")
@@ -840,7 +840,7 @@ class FakeService(threading.Thread):
         self.context = zmq.Context()
         self.socket = self.context.socket(zmq.ROUTER)
         self.socket.bind(endpoint)
-        self.frames: list[wire.FrameMessage] = []
+        self.frames: list[messages.FrameMessage] = []
         self.done = threading.Event()
         self.start()
 
@@ -851,16 +851,16 @@ class FakeService(threading.Thread):
                 continue
             identity, data = self.socket.recv_multipart()
             message = wire.decode_request(data, Limits())
-            if isinstance(message, wire.Hello):
+            if isinstance(message, messages.Hello):
                 self.socket.send_multipart([identity, ready])
             else:
                 self.frames.append(message)
-                self.socket.send_multipart([identity, wire.encode_ack(wire.Ack("fake", message.id))])
+                self.socket.send_multipart([identity, wire.encode_ack(messages.Ack("fake", message.id))])
         self.socket.close(linger=0)
         self.context.term()
 
 
-def _replay_into_fake(source, tmp_path: Path, name: str, **kwargs) -> list[wire.FrameMessage]:
+def _replay_into_fake(source, tmp_path: Path, name: str, **kwargs) -> list[messages.FrameMessage]:
     fake = FakeService(f"ipc://{tmp_path}/{name}")
     try:
         with FramePublisher(f"ipc://{tmp_path}/{name}", encoding="png") as publisher:
@@ -931,10 +931,10 @@ def test_a_listener_skips_what_it_cannot_read(tmp_path):
                        "heading_confidence": 1.0, "latency_ms": {}}
             time.sleep(0.2)
             publisher.send_multipart([b"result", b"\xc1garbage"])
-            publisher.send_multipart([b"result", msgpack.packb({"v": wire.VERSION, "type": "result", **summary,
+            publisher.send_multipart([b"result", msgpack.packb({"v": messages.VERSION, "type": "result", **summary,
                                                                 "match_index": "three"})])
             publisher.send_multipart([b"result", b"x", b"three parts"])
-            publisher.send_multipart([b"result", wire.encode_result(summary, "s", wire.Tag("", 1, 1))])
+            publisher.send_multipart([b"result", wire.encode_result(summary, "s", messages.Tag("", 1, 1))])
             got = listener.receive(5)
             assert isinstance(got, Result) and got.frame_id == 4 and got.match_index == 3
             assert listener.bad_messages == 3

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from scipy.spatial.distance import cosine
 
-from lostx.core.keypoints import KeypointEvidence, argmax_keypoints, frame_evidence
-from lostx.core.verify import density_filter, eq4_score, pair_similarity, released_score, verify
+from lostx.core.describe.keypoints import KeypointEvidence, argmax_keypoints, frame_evidence
+from lostx.core.match.verify import density_filter, eq4_score, pair_similarity, released_score, verify
 
 
 def test_argmax_keypoints_one_per_channel_and_none_for_dead_channels():

@@ -22,11 +22,11 @@ import rerun.blueprint as rrb  # noqa: E402
 from rerun.chunk import RrdReader  # noqa: E402
 
 from lostx.core.config import Config, HeadingConfig  # noqa: E402
-from lostx.core.estimate import Estimate  # noqa: E402
+from lostx.core.decide.estimate import Estimate  # noqa: E402
 from lostx.core.frame import Frame  # noqa: E402
 from lostx.core.localizer import Localizer  # noqa: E402
-from lostx.core.verify import verify  # noqa: E402
-from lostx.core.refmap import ReferenceMap  # noqa: E402
+from lostx.core.match.verify import verify  # noqa: E402
+from lostx.core.maps.refmap import ReferenceMap  # noqa: E402
 from lostx.replay.folder import folder_traverse  # noqa: E402
 from lostx.viz import entities as e  # noqa: E402
 from lostx.viz.blueprint import build_blueprint  # noqa: E402

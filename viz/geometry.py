@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from lostx.core.verify import Correspondences
+from lostx.core.match.verify import Correspondences
 
 GAP = 16
 """Pixels between the query and the reference image in the match space."""

@@ -22,7 +22,7 @@ import numpy as np
 
 from lostx.core.errors import ImageError
 from lostx.core.images import read_image
-from lostx.core.refmap import ReferenceMap
+from lostx.core.maps.refmap import ReferenceMap
 
 from .geometry import display_size
 

@@ -31,10 +31,10 @@ from typing import Callable
 import numpy as np
 import rerun as rr
 
-from lostx.core.estimate import Estimate
+from lostx.core.decide.estimate import Estimate
 from lostx.core.frame import Frame
 from lostx.core.paths import cache_dir
-from lostx.core.refmap import ReferenceMap
+from lostx.core.maps.refmap import ReferenceMap
 
 from . import colours
 from . import entities as e

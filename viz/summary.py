@@ -9,9 +9,9 @@ from __future__ import annotations
 
 import math
 
-from lostx.core.estimate import Candidate, Estimate
+from lostx.core.decide.estimate import Candidate, Estimate
 from lostx.core.frame import Frame
-from lostx.core.refmap import ReferenceMap
+from lostx.core.maps.refmap import ReferenceMap
 
 NAME_CHARS = 28
 """File names longer than this are shown by their end (where frame numbers and stamps are)."""

@@ -12,9 +12,9 @@ import contextlib
 import hashlib
 import os
 import sys
+import typing
 from dataclasses import dataclass
 from pathlib import Path
-import typing
 from typing import Protocol, runtime_checkable
 
 import numpy as np

@@ -35,10 +35,10 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from .base import BackboneInfo, SemanticFrame, file_md5
 from ..config import BackboneConfig
 from ..errors import InputError, ModelError
 from ..images import check_frame
+from .base import BackboneInfo, SemanticFrame, file_md5
 
 CITYSCAPES_CLASSES = (
     "road", "sidewalk", "building", "wall", "fence", "pole", "traffic light", "traffic sign", "vegetation",

@@ -17,10 +17,10 @@ import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
+from ..errors import InputError, ModelError
 from .base import quiet_stderr
 from .description import description_path
 from .espnet import CITYSCAPES_CLASSES, DEFAULT_CLASSES, IMAGENET_MEAN, IMAGENET_STD, INPUT_SIZE, load_network
-from ..errors import InputError, ModelError
 
 OPSET = 18
 

@@ -11,9 +11,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from ..config import BackboneConfig
 from .description import ModelDescription
 from .tflite import TFLiteBackbone
-from ..config import BackboneConfig
 
 ADE20K_CLASSES = (
     "other", "wall", "building", "sky", "floor", "tree", "ceiling", "road", "bed", "windowpane",

@@ -14,10 +14,10 @@ from typing import Any
 
 import numpy as np
 
-from .description import GUIDE, ModelDescription, read_description
-from .runtime import DescribedBackbone, TensorSpec
 from ..config import BackboneConfig
 from ..errors import InputError, ModelError
+from .description import GUIDE, ModelDescription, read_description
+from .runtime import DescribedBackbone, TensorSpec
 
 DTYPES = {
     "tensor(float)": np.float32, "tensor(float16)": np.float16, "tensor(double)": np.float64,

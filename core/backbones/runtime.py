@@ -15,10 +15,10 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from .base import BackboneInfo, Quantisation, SemanticFrame, file_md5, softmax
-from .description import GUIDE, Layout, ModelDescription, Resize
 from ..errors import ModelError
 from ..images import check_frame
+from .base import BackboneInfo, Quantisation, SemanticFrame, file_md5, softmax
+from .description import GUIDE, Layout, ModelDescription, Resize
 
 
 @dataclass(frozen=True)

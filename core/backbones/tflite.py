@@ -14,11 +14,11 @@ from typing import Any
 
 import numpy as np
 
+from ..config import BackboneConfig
+from ..errors import InputError, ModelError
 from .base import Quantisation, quiet_stderr
 from .description import GUIDE, ModelDescription, read_description
 from .runtime import DescribedBackbone, TensorSpec
-from ..config import BackboneConfig
-from ..errors import InputError, ModelError
 
 
 def open_interpreter(path: Path, threads: int) -> Any:

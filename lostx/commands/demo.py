@@ -30,10 +30,10 @@ from lostx.options import (
 
 if TYPE_CHECKING:
     from lostx.core.config import Config
-    from lostx.core.refmap import ReferenceMap
+    from lostx.core.maps.refmap import ReferenceMap
     from lostx.stream.client import Listener
     from lostx.stream.processes import ProcessGroup
-    from lostx.stream.protocol import Result, Stats
+    from lostx.stream.messages import Result, Stats
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -55,9 +55,9 @@ def demo_map(day: Path, out: Path, config: Config, rebuild: bool) -> ReferenceMa
     there."""
     from lostx.core.backbones import load_backbone
     from lostx.core.build import build_map
-    from lostx.core.describe import LostDescriber
+    from lostx.core.describe.describer import LostDescriber
     from lostx.core.errors import MapError
-    from lostx.core.refmap import ReferenceMap
+    from lostx.core.maps.refmap import ReferenceMap
     from lostx.replay.folder import folder_traverse
 
     backbone = load_backbone(config.backbone)
@@ -157,7 +157,7 @@ def _stream(args: argparse.Namespace, refmap: ReferenceMap, night, tmp: Path, pr
     from lostx.stream.client import Listener
     from lostx.stream.errors import StreamError
     from lostx.stream.processes import lostx_command
-    from lostx.stream.protocol import ErrorMessage, Result, Stats
+    from lostx.stream.messages import ErrorMessage, Result, Stats
 
     frames, results = f"ipc://{tmp}/frames", f"ipc://{tmp}/results"
     last_id = len(night) - 1
@@ -208,7 +208,7 @@ def _stream(args: argparse.Namespace, refmap: ReferenceMap, night, tmp: Path, pr
 
 def _next_stats(listener: Listener, timeout: float = 5.0) -> Stats | None:
     """The service's next stats message (sent every second), counting every answer so far."""
-    from lostx.stream.protocol import Stats
+    from lostx.stream.messages import Stats
 
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:

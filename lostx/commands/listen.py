@@ -18,7 +18,7 @@ from lostx.options import add_client_key_options, client_keys_from_args, number,
 
 if TYPE_CHECKING:
     from lostx.stream.client import Listener
-    from lostx.stream.protocol import ErrorMessage, Result, Stats
+    from lostx.stream.messages import ErrorMessage, Result, Stats
 
 HEADER = (f"{'stream':<10s}  {'frame':>7s}  {'state':<13s}  {'match':>6s}  {'name':<18s}  {'conf':>5s}  {'score':>9s}  "
           f"{'seq':>8s}  {'ms':>6s}")
@@ -52,7 +52,7 @@ def run(args: argparse.Namespace) -> int:
     from lostx.core.errors import InputError
     from lostx.core.outputs import check_output_file
     from lostx.stream.client import Listener
-    from lostx.stream.protocol import ErrorMessage, Result
+    from lostx.stream.messages import ErrorMessage, Result
 
     keys = client_keys_from_args(args)
     to_stdout = args.jsonl is not None and str(args.jsonl) == "-"
@@ -173,7 +173,7 @@ def format_stats(s: Stats) -> str:
 
 
 def _plain(message: Result | ErrorMessage | Stats) -> dict:
-    from lostx.stream.protocol import ErrorMessage, Result
+    from lostx.stream.messages import ErrorMessage, Result
 
     if isinstance(message, Result):
         return {"type": "result", **message.to_dict()}

@@ -55,9 +55,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run_build(args: argparse.Namespace) -> int:
     from lostx.core.backbones import load_backbone
     from lostx.core.build import build_map
-    from lostx.core.describe import LostDescriber
+    from lostx.core.describe.describer import LostDescriber
     from lostx.core.outputs import check_output_folder
-    from lostx.core.thumbnail import ThumbnailDescriber
+    from lostx.core.describe.thumbnail import ThumbnailDescriber
     from lostx.replay.dataset import open_traverse
 
     config = config_from_args(args)
@@ -88,7 +88,7 @@ def run_build(args: argparse.Namespace) -> int:
 
 
 def run_info(args: argparse.Namespace) -> int:
-    from lostx.core.refmap import ReferenceMap
+    from lostx.core.maps.refmap import ReferenceMap
 
     refmap = ReferenceMap.open(args.map, verify_checksums=args.verify)
     m = refmap.manifest
@@ -127,7 +127,7 @@ def _print_recall(refmap, args: argparse.Namespace) -> None:  # noqa: ANN001 (Re
     from tqdm import tqdm
 
     from lostx.core.config import load_config
-    from lostx.core.indexcheck import SAMPLES, index_recall
+    from lostx.core.match.indexcheck import SAMPLES, index_recall
 
     search = load_config(args.config).search
     samples = args.samples or SAMPLES

@@ -21,8 +21,8 @@ from lostx.options import (
 )
 
 if TYPE_CHECKING:
-    from lostx.core.estimate import Estimate
-    from lostx.core.refmap import ReferenceMap
+    from lostx.core.decide.estimate import Estimate
+    from lostx.core.maps.refmap import ReferenceMap
 
 COLUMNS = ["query_index", "query_file", "match_index", "match_file", "score", "confidence", "candidates",
            "distance", "correspondences"]
@@ -59,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
     from lostx.core.errors import InputError, MapError
     from lostx.core.localizer import Localizer
     from lostx.core.outputs import check_output_file
-    from lostx.core.refmap import ReferenceMap
+    from lostx.core.maps.refmap import ReferenceMap
     from lostx.replay.dataset import open_traverse
 
     config = config_from_args(args)

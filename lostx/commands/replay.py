@@ -68,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
     from lostx.replay.camera import camera_index
     from lostx.replay.dataset import open_traverse
     from lostx.replay.pace import Pace, check_realtime
-    from lostx.stream.protocol import MAX_NAME
+    from lostx.stream.messages import MAX_NAME
     from lostx.stream.replay import replay
 
     if args.jpeg_quality is not None and not 1 <= args.jpeg_quality <= 100:

@@ -51,7 +51,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from lostx.core.errors import InputError
     from lostx.core.outputs import check_output_file, check_output_folder
-    from lostx.core.refmap import ReferenceMap
+    from lostx.core.maps.refmap import ReferenceMap
     from lostx.sinks import resolve_sink
     from lostx.stream.service import LocalizerService
     from lostx.stream.sinks import JsonlSink

@@ -27,12 +27,12 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from .config import CameraConfig, Fit
-from .frame import Camera
-from .errors import InputError
+from ..config import CameraConfig, Fit
+from ..errors import InputError
+from ..frame import Camera
 
 if TYPE_CHECKING:
-    from .backbones import BackboneInfo
+    from ..backbones import BackboneInfo
 
 
 @dataclass(frozen=True)

@@ -3,7 +3,7 @@
 A map is a folder::
 
     manifest.json           format, version, backbone, classes, settings, frames, input (what the
-                            frames looked like: lostx.core.inputcheck),
+                            frames looked like: lostx.core.describe.inputcheck),
                             and every array's dtype, shape, size and sha256
     descriptors.npy         (N, K) float16 normalised LoST descriptors, or uint8 thumbnails
     stats_mean.npy          (K,) float32  } per-dimension statistics of the raw
@@ -26,60 +26,27 @@ locations (its slots). They are stored exactly: a quantised backbone's uint8
 values as they came out of the network, or float16 otherwise, and only the
 non-zero ones (ReLU features are ~90 % zeros), with a bit mask per slot.
 
-    index.faiss             the approximate index of the descriptors (lostx.core.index)
+    index.faiss             the approximate index of the descriptors (lostx.core.maps.index)
 
 The manifest is written last, into a temporary folder that is renamed into
 place, so an interrupted build never leaves a folder that opens as a map
-(lostx.core.mapwriter writes maps).
+(lostx.core.maps.mapwriter writes maps).
 """
 
 from __future__ import annotations
 
 import json
-from dataclasses import asdict
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Literal
+from typing import Any
 
 import numpy as np
 
-from .backbones import BackboneInfo, Quantisation
-from .errors import MapError
+from ..backbones import BackboneInfo, Quantisation
+from ..describe.keypoints import KeypointEvidence
+from ..describe.lost import DescriptorStats
+from ..errors import MapError
+from .format import BACKBONE_IDENTITY, MAP_FORMAT, MAP_VERSION, MapKind, backbone_dict, backbone_identity
 from .index import ApproximateIndex, file_sha256
-from .keypoints import KeypointEvidence
-from .lost import DescriptorStats
-
-if TYPE_CHECKING:
-    from .calibration import Calibration
-    from .config import Config
-
-MAP_FORMAT = "lostx-map"
-MAP_VERSION = 1
-MapKind = Literal["lost", "thumbnail"]
-
-
-BACKBONE_IDENTITY = {
-    "name": "name", "model_md5": "model", "feature_tensor": "feature tensor", "feature_dim": "feature size",
-    "grid": "grid",
-}
-"""What a map records of its backbone that a query backbone must match, and how errors call each."""
-
-
-def _identity(backbone: dict[str, Any]) -> str:
-    h, w = backbone.get("grid", ("?", "?"))
-    tensor = f" {backbone['feature_tensor']!r}" if backbone.get("feature_tensor") else ""
-    return (f"{backbone.get('name')} (model {backbone.get('model_file')} md5 {backbone.get('model_md5')}, "
-            f"features{tensor} {backbone.get('feature_dim')} x {h}x{w})")
-
-
-def backbone_dict(info: BackboneInfo | None) -> dict[str, Any] | None:
-    """A backbone's info as the manifest records it."""
-    if info is None:
-        return None
-    data = asdict(info)
-    data["grid"] = list(info.grid)
-    data["class_names"] = list(info.class_names)
-    data["default_classes"] = {k: list(v) for k, v in info.default_classes.items()}
-    return data
 
 
 class ReferenceMap:
@@ -142,7 +109,7 @@ class ReferenceMap:
 
     @property
     def index(self) -> ApproximateIndex | None:
-        """The map's approximate index (lostx.core.index), opened on first use; None for a map built without."""
+        """The map's approximate index (lostx.core.maps.index), opened on first use; None for a map built without."""
         entry = self.manifest.get("index")
         if self._index is None and entry:
             self._index = ApproximateIndex(self.path / entry["file"], self.n_frames)
@@ -192,21 +159,6 @@ class ReferenceMap:
         index = self.manifest.get("index") or {}
         return sum(int(e["bytes"]) for e in self.manifest["arrays"].values()) + int(index.get("bytes", 0))
 
-    def calibration(self, config: "Config") -> "Calibration | None":
-        """The stored calibration measured with these settings, if any (see lostx.core.calibration)."""
-        from .calibration import load, settings_key
-
-        return load(self.path, settings_key(config))
-
-    def store_calibration(self, calibration: "Calibration") -> None:
-        """Keep a calibration beside the map; a map on a read-only disk simply goes without."""
-        from .calibration import store
-
-        try:
-            store(self.path, calibration)
-        except OSError:
-            pass
-
     def check_backbone(self, info: BackboneInfo) -> None:
         """Refuse queries described by another backbone than the one that built the map: another name, model
         file, feature tensor, feature size or grid is a one-line error naming both sides."""
@@ -218,8 +170,8 @@ class ReferenceMap:
         differ = [key for key in BACKBONE_IDENTITY if key in mine and mine[key] != theirs[key]]
         if differ:
             raise MapError(
-                f"{self.path} was built with backbone {_identity(mine)}, but the query backbone is "
-                f"{_identity(theirs)} ({', '.join(BACKBONE_IDENTITY[key] for key in differ)} differ); "
+                f"{self.path} was built with backbone {backbone_identity(mine)}, but the query backbone is "
+                f"{backbone_identity(theirs)} ({', '.join(BACKBONE_IDENTITY[key] for key in differ)} differ); "
                 f"use --backbone {mine.get('name')} with its model, or rebuild the map"
             )
 

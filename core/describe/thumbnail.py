@@ -17,9 +17,8 @@ from typing import Any
 import cv2
 import numpy as np
 
-from .errors import InputError
-from .images import check_frame
-
+from ..errors import InputError
+from ..images import check_frame
 
 ZERO = 128
 """Thumbnails are stored as uint8 with round(z) = 0 at 128, as SeqSLAM stores 127 + round(z)."""

@@ -5,7 +5,7 @@ its search. Its cost at reference r, c_t(r), is the score locally contrast-norma
 references as in SeqSLAM and standardised against r's own running statistics (hub suppression), so that
 costs of different frames are comparable and a reference that is close to everything does not win
 everywhere; lower is better, 0 is an average reference. Where the costs come from
-(:mod:`lostx.core.costs`): computed for every map frame as each frame arrives, or looked up where the
+(:mod:`lostx.core.match.costs`): computed for every map frame as each frame arrives, or looked up where the
 filter looks, never for the whole map (``sequence.costs``: on large maps).
 
 A *trajectory* is a straight line in the (frame, reference) plane through
@@ -48,7 +48,7 @@ def signed(magnitudes: tuple[float, ...], stopped: bool) -> np.ndarray:
 
 
 class WindowCosts(Protocol):
-    """The costs of the frames in the window, looked up by (frame, reference) (:mod:`lostx.core.costs`)."""
+    """The costs of the frames in the window, looked up by (frame, reference) (:mod:`lostx.core.match.costs`)."""
 
     n_refs: int
     seconds: float

@@ -1,7 +1,7 @@
 """Candidate search: the k reference frames nearest to a query descriptor (paper Sec. III-A).
 
 Below ``search.index_min_frames`` map frames (or with ``search.index = "off"``) every map frame is
-compared. Above it, the map's approximate index (:mod:`lostx.core.index`, built with the map)
+compared. Above it, the map's approximate index (:mod:`lostx.core.maps.index`, built with the map)
 proposes ``search.index_shortlist`` frames, ranked again by their exact distance: the k nearest
 returned are the exact nearest whenever the index found them (``lostx map info --verify``
 measures how often it does). The distance itself is always exact: LoST cosine distance, or the
@@ -15,11 +15,11 @@ from typing import TYPE_CHECKING
 import cv2
 import numpy as np
 
-from .config import SearchConfig
-from .errors import MapError
+from ..config import SearchConfig
+from ..errors import MapError
 
 if TYPE_CHECKING:
-    from .refmap import ReferenceMap
+    from ..maps.refmap import ReferenceMap
 
 
 def top_k(distances: np.ndarray, k: int) -> np.ndarray:

@@ -15,12 +15,12 @@ from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
-from .config import SearchConfig
-from .errors import MapError
+from ..config import SearchConfig
+from ..errors import MapError
 from .search import CandidateSearch
 
 if TYPE_CHECKING:
-    from .refmap import ReferenceMap
+    from ..maps.refmap import ReferenceMap
 
 SAMPLES = 500
 """Map frames sampled by default (evenly spaced along the map)."""

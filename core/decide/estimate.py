@@ -13,8 +13,8 @@ from typing import Any, Literal
 
 import numpy as np
 
-from .frame import Heading
-from .verify import Correspondences
+from ..frame import Heading
+from ..match.verify import Correspondences
 
 State = Literal["localized", "not_localized"]
 STATES: tuple[str, ...] = ("localized", "not_localized")
@@ -69,7 +69,7 @@ class Estimate:
     confidence: float
     """In [0, 1]: the share of the wrong answers the map produces against itself that look less sure
     than this one (an estimate of the probability that the answer is right). Thresholding it trades
-    precision against recall; see :mod:`lostx.core.calibration`."""
+    precision against recall; see :mod:`lostx.core.decide.calibration`."""
     score: float
     """The method's own score of the answer, lower is better (sequence cost, or the
     single-frame score without the sequence filter)."""

@@ -27,9 +27,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .config import DensityFilter, Scoring
-from .keypoints import KeypointEvidence
-from .lost import l2_normalise
+from ..config import DensityFilter, Scoring
+from ..describe.keypoints import KeypointEvidence
+from ..describe.lost import l2_normalise
 
 
 @dataclass

@@ -4,7 +4,7 @@ Two hypotheses: ``same`` (the query camera looks along the route the way the
 map's camera did) and ``opposite`` (a rear camera against a front-camera map,
 or the mapped road driven the other way). Every frame is verified under both
 (the query's x mirrored or not, paper Sec. III-C); the mirroring that fits its
-candidates better casts the frame's vote (:func:`lostx.core.matcher.heading_vote`).
+candidates better casts the frame's vote (:func:`lostx.core.match.matcher.heading_vote`).
 
 A two-state discrete Bayes filter (filterpy) accumulates the votes:
 
@@ -24,9 +24,8 @@ from __future__ import annotations
 import numpy as np
 from filterpy.discrete_bayes import predict, update
 
-from .config import HeadingConfig
-from .frame import HEADINGS, Heading
-
+from ..config import HeadingConfig
+from ..frame import HEADINGS, Heading
 
 
 class TwoStateFilter:

@@ -28,7 +28,7 @@ import numpy as np
 from filterpy.common import Q_discrete_white_noise
 from filterpy.kalman import KalmanFilter
 
-from .config import TrackerConfig
+from ..config import TrackerConfig
 
 
 @dataclass

@@ -25,10 +25,10 @@ from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 
-from .errors import MapError
+from ..errors import MapError
 
 if TYPE_CHECKING:
-    from .refmap import MapKind
+    from .format import MapKind
 
 INDEX_FILE = "index.faiss"
 NEIGHBOURS = 32

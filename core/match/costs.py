@@ -1,4 +1,4 @@
-"""Where the sequence filter's costs come from (see :mod:`lostx.core.sequence`).
+"""Where the sequence filter's costs come from (see :mod:`lostx.core.route.sequence`).
 
 A frame's single-frame score of map frame r, s(r) (:class:`MapScores`, lower is better), becomes its cost
 in two steps:

@@ -9,19 +9,19 @@ from typing import Callable
 
 import numpy as np
 
-from .backbones import Backbone, load_backbone
-from .camera import Geometry
-from .config import Config, LostConfig, looks_up_costs
-from .describe import LostDescriber, TrailingMeans
-from .errors import MapError
-from .frame import Camera, Heading
-from .images import check_frame
-from .keypoints import KeypointEvidence
-from .lost import RunningStandardiser
-from .refmap import ReferenceMap
+from ..backbones import Backbone, load_backbone
+from ..config import Config, LostConfig, looks_up_costs
+from ..describe.camera import Geometry
+from ..describe.describer import LostDescriber, TrailingMeans
+from ..describe.keypoints import KeypointEvidence
+from ..describe.lost import RunningStandardiser
+from ..describe.thumbnail import ThumbnailDescriber
+from ..errors import MapError
+from ..frame import Camera, Heading
+from ..images import check_frame
+from ..maps.refmap import ReferenceMap
 from .scores import MapScores
 from .search import CandidateSearch, QueryDistances
-from .thumbnail import ThumbnailDescriber
 from .verify import Correspondences, Verification, verify
 
 
@@ -254,7 +254,7 @@ class PlaceMatcher:
     def match_reference(self, index: int, exclude: int) -> FrameMatch | None:
         """Map frame ``index`` as a query, with the reference frames within ``exclude`` of it removed:
         its answer is necessarily wrong. What wrong answers look like, measured without any query
-        (see :mod:`lostx.core.calibration`), searched and scored as a query is. None when the exclusion
+        (see :mod:`lostx.core.decide.calibration`), searched and scored as a query is. None when the exclusion
         leaves no reference frame."""
         removed = _around(self.map.n_frames, index, exclude)
         if self.map.n_frames <= removed.stop - removed.start:

@@ -8,12 +8,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .backbones import Backbone, BackboneInfo, SemanticFrame
-from .backbones.presets import preset_classes
+from ..backbones import Backbone, BackboneInfo, SemanticFrame
+from ..backbones.presets import preset_classes
+from ..config import LostConfig
+from ..errors import InputError, ModelError
 from .classes import ClassGroups
-from .config import LostConfig
 from .coverage import ClassCoverageWarning, CoverageCheck
-from .errors import InputError, ModelError
 from .keypoints import KeypointEvidence, frame_evidence
 from .lost import class_means, gem_pool, lost_descriptor, window_means
 

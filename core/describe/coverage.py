@@ -8,8 +8,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from .backbones.presets import PRESETS, preset_classes
-from .errors import InputError
+from ..backbones.presets import PRESETS, preset_classes
+from ..errors import InputError
 
 
 class ClassCoverageWarning(UserWarning):

@@ -3,7 +3,8 @@
 A threshold on a raw margin does not transfer between data sets: its scale depends on the scene,
 the descriptor and the sequence settings. What does transfer is a rank among wrong answers. Every
 map frame is matched against its own map with the frames within ``sequence.exclusion`` of it
-removed (:meth:`PlaceMatcher.match_reference`), in route order through the same sequence filter,
+removed (:meth:`PlaceMatcher.match_reference`, run by
+:func:`lostx.core.localizer.calibrate`), in route order through the same sequence filter,
 so that each answer is necessarily wrong: an *impostor*. Their margins (sequence mode: the best
 trajectory's lead over the best trajectory elsewhere; single frame: the uniqueness of the best
 candidate) make the empirical distribution F of wrong answers on this map, with these settings.
@@ -26,16 +27,11 @@ import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable
+from typing import Any
 
 import numpy as np
 
-from .config import Config, HeadingConfig, TrackerConfig
-from .frame import Frame
-
-if TYPE_CHECKING:
-    from .backbones import Backbone
-    from .refmap import ReferenceMap
+from ..config import Config
 
 CALIBRATION_FILE = "calibration.json"
 
@@ -81,53 +77,13 @@ def settings_key(config: Config) -> dict[str, Any]:
     return json.loads(json.dumps({"sequence": sequence, "verify": verify}))
 
 
-def calibrate(refmap: "ReferenceMap", config: Config, backbone: "Backbone | None" = None,
-              progress: Callable[[int], None] | None = None) -> Calibration:
-    """Match up to ``decision.calibration_frames`` map frames against the map, neighbourhood excluded.
-
-    Longer maps are sampled in stretches spread over the route (each stretch long enough to fill the
-    sequence window several times), so that the sequence filter sees a traverse as it would live.
-    """
-    from .localizer import Localizer  # the localizer uses calibrations
-
-    seq = config.sequence
-    # The map views the route the way it was built; the raw margins are wanted, not the tracker's gate.
-    quiet = dataclasses.replace(config, heading=HeadingConfig(declared_prior=1.0),
-                                tracker=TrackerConfig(enabled=False),
-                                sequence=dataclasses.replace(seq, enabled=True))
-    sequence_margins: list[float] = []
-    single: list[float] = []
-    for stretch in _stretches(refmap.n_frames, config.decision.calibration_frames, 4 * seq.length):
-        localizer = Localizer(refmap, quiet, backbone, calibration=UNCALIBRATED)
-        for index in stretch:
-            matches = localizer.matcher.match_reference(int(index), seq.exclusion)
-            if matches is None:
-                continue
-            frame = Frame(id=int(index), image=_NO_PIXELS, camera=refmap.camera)  # type: ignore[arg-type]
-            estimate = localizer.update(frame, matches)
-            single.append(matches.same.confidence)
-            if not estimate.warming_up and estimate.margin is not None and np.isfinite(estimate.margin):
-                sequence_margins.append(estimate.margin)
-            if progress is not None:
-                progress(1)
-    return Calibration(np.sort(np.asarray(sequence_margins)), np.sort(np.asarray(single)), settings_key(config))
-
-
-def _stretches(n_frames: int, budget: int, length: int) -> list[np.ndarray]:
-    if n_frames <= budget:
-        return [np.arange(n_frames)]
-    length = min(length, budget)
-    count = max(1, budget // length)
-    starts = np.linspace(0, n_frames - length, count).astype(np.int64)
-    return [np.arange(start, start + length) for start in starts]
-
-
 KEPT = 8
 """Calibrations kept beside a map (one per set of settings, the most recent first)."""
 
 
-def load(path: Path, settings: dict[str, Any]) -> Calibration | None:
-    """The calibration stored beside a map for these settings (:func:`settings_key`), or None."""
+def load(path: Path, config: Config) -> Calibration | None:
+    """The calibration stored beside the map at ``path`` for these settings (:func:`settings_key`), or None."""
+    settings = settings_key(config)
     for entry in _stored(path):
         if entry.get("settings") == settings:
             try:
@@ -138,13 +94,17 @@ def load(path: Path, settings: dict[str, Any]) -> Calibration | None:
 
 
 def store(path: Path, calibration: Calibration) -> None:
-    """Keep ``calibration`` beside the map (``calibration.json``, written atomically; the map itself is
-    not touched), with up to ``KEPT`` calibrations for other settings."""
+    """Keep ``calibration`` beside the map at ``path`` (``calibration.json``, written atomically; the map itself
+    is not touched), with up to ``KEPT`` calibrations for other settings. A map on a read-only disk simply goes
+    without: the calibration is measured again next time."""
     others = [e for e in _stored(path) if e.get("settings") != calibration.settings]
     file = Path(path) / CALIBRATION_FILE
     tmp = file.with_name(f".{file.name}.{os.getpid()}")
-    tmp.write_text(json.dumps([calibration.to_dict(), *others][:KEPT]))
-    os.replace(tmp, file)
+    try:
+        tmp.write_text(json.dumps([calibration.to_dict(), *others][:KEPT]))
+        os.replace(tmp, file)
+    except OSError:
+        tmp.unlink(missing_ok=True)
 
 
 def _stored(path: Path) -> list[dict[str, Any]]:
@@ -158,5 +118,3 @@ def _stored(path: Path) -> list[dict[str, Any]]:
 
 UNCALIBRATED = Calibration(np.zeros(0), np.zeros(0), {})
 """For the runs that measure a calibration: confidence is not needed there, only the margins."""
-
-_NO_PIXELS = np.zeros((1, 1, 3), np.uint8)

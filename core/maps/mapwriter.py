@@ -2,7 +2,7 @@
 
 A build hands the writer its frames one by one (:class:`MapFrame`) or a chunk at a time
 (:class:`MapChunk`: a run of frames packed as the map stores them, before the normalisation that
-needs all of them). Chunks may live on disk (a build's checkpoint, :mod:`lostx.core.checkpoint`)
+needs all of them). Chunks may live on disk (a build's checkpoint, :mod:`lostx.core.maps.checkpoint`)
 and may come from other processes (a cluster: :mod:`lostx.cluster`). The commit streams through
 them in frame order, so it never holds more than a block of frames in memory, and gives the same
 bytes however the frames were cut into chunks: the descriptor statistics are summed over fixed
@@ -22,14 +22,14 @@ from typing import Any, Callable, Iterator
 import numpy as np
 from numpy.lib.format import open_memmap
 
-from .backbones import BackboneInfo
-from .errors import MapError
+from ..backbones import BackboneInfo
+from ..describe.inputcheck import Looks, ProfileBuilder
+from ..describe.keypoints import KeypointEvidence
+from ..describe.lost import DescriptorStats, standardise
+from ..errors import MapError
+from ..outputs import check_output_folder
+from .format import MAP_FORMAT, MAP_VERSION, MapKind, backbone_dict
 from .index import build_index, file_sha256
-from .inputcheck import Looks, ProfileBuilder
-from .keypoints import KeypointEvidence
-from .lost import DescriptorStats, standardise
-from .outputs import check_output_folder
-from .refmap import MAP_FORMAT, MAP_VERSION, MapKind, backbone_dict
 
 CHUNK_FRAMES = 256
 """Frames per chunk: what a crash can lose of a build, and what one Ray task describes."""
@@ -52,7 +52,7 @@ class MapFrame:
     position: tuple[float, float] | None = None
     timestamp: float | None = None
     looks: Looks | None = None
-    """What the frame looked like (lostx.core.inputcheck), for the map's input profile."""
+    """What the frame looked like (lostx.core.describe.inputcheck), for the map's input profile."""
     label_frequencies: np.ndarray | None = None
     """How often the network gave each grouped label in the frame (LoST maps)."""
     camera: str | None = None
