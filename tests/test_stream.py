@@ -650,9 +650,11 @@ def test_streams_are_bounded_and_idle_ones_expire(thumb_map, nordland, tmp_path)
 
 def test_a_live_listener_that_falls_behind_counts_what_it_missed(thumb_map, nordland, tmp_path):
     frames, results = endpoints("ipc", tmp_path)
-    config = StreamConfig(frames=frames, results=results, result_hwm=2, stats_interval=0.1)
+    # The service waits for the listener, so it hears of every answer from the first; the listener takes 10
+    # answers a second, far fewer than the service gives even on a busy machine.
+    config = StreamConfig(frames=frames, results=results, result_hwm=2, stats_interval=0.1, wait_listeners=1)
     service = LocalizerService(localizer_factory(thumb_map, Config()), config, log=lambda text: None)
-    slow = Collector(results, delay=lambda n: 0.02, hwm=1, rcvbuf=4096)
+    slow = Collector(results, delay=lambda n: 0.1, hwm=1, rcvbuf=4096)
     with service:
         thread = threading.Thread(target=service.run, daemon=True)
         thread.start()
