@@ -20,7 +20,7 @@ from typing import Callable, Iterable, Iterator, Protocol, Sequence
 import numpy as np
 from tqdm import tqdm
 
-from .config import Config
+from .config import Config, LayoutConfig
 from .decide.calibration import store
 from .describe.camera import Geometry
 from .describe.describer import DescribedFrame, LostDescriber
@@ -29,6 +29,9 @@ from .describe.lost import centred_window, window_means
 from .describe.thumbnail import ThumbnailDescriber
 from .errors import MapError
 from .frame import Frame
+from .layout.classes import LayoutClasses
+from .layout.describer import FramePlacer, Placed, map_grid
+from .layout.grid import LayoutGrid, pack
 from .localizer import calibrate
 from .maps.checkpoint import BuildCheckpoint, missing_ranges
 from .maps.format import BACKBONE_IDENTITY, MAP_VERSION, MapKind, backbone_dict
@@ -99,40 +102,77 @@ def describe_chunks(frames: FrameSource, start: int, stop: int, config: Config,
         yield MapChunk.of_frames(first, run, "lost" if lost else "thumbnail", info, n_labels)
 
 
+@dataclass(eq=False)
+class _Held:
+    index: int
+    frame: Frame
+    described: DescribedFrame
+    placed: Placed | None
+
+
 def _windowed(
     frames: Iterable[Frame], describe: Callable[[np.ndarray], DescribedFrame], geometry: Geometry, window: int,
-    emit_from: int = 0,
-) -> Iterator[tuple[int, Frame, DescribedFrame, np.ndarray]]:
-    """Yield each frame (from the ``emit_from``-th on; those before only lend their class means) with its
-    class means averaged over a centred window, clipped at the ends of ``frames``. Each image is fitted to
-    the backbone by ``geometry`` for the camera its frame declares.
+    emit_from: int = 0, placer: FramePlacer | None = None, layout: LayoutConfig | None = None,
+) -> Iterator[tuple[int, Frame, DescribedFrame, np.ndarray, Placed | None, LayoutGrid | None]]:
+    """Yield each frame (from the ``emit_from``-th on; those before only lend their class means and layout)
+    with its class means averaged over a centred window, clipped at the ends of ``frames``, and, with a
+    ``placer``, its placement and layout grid from the frames within ``layout.map_travel`` metres of it. Each
+    image is fitted to the backbone by ``geometry`` for the camera its frame declares.
 
-    Frames stream through: frame j is finished as soon as frame j + window // 2
-    has been described, so at most ``window`` frames are held at a time.
+    Frames stream through: frame j is finished once frame j + window // 2 has been described and, for the
+    layout, once the frames held reach ``map_travel`` metres beyond it or ``2 * max_frames`` frames, so at
+    most that many frames are held at a time.
     """
     half = window // 2
-    held: deque[tuple[int, Frame, DescribedFrame]] = deque()
+    reach = 2 * layout.max_frames if placer is not None and layout is not None else 0
+    held: deque[_Held] = deque()
     done = emit_from
 
-    def finish(j: int, length: int) -> tuple[int, Frame, DescribedFrame, np.ndarray]:
+    def ready(j: int, newest: int) -> bool:
+        if newest - j < half:
+            return False
+        item = next(h for h in held if h.index == j)
+        if item.placed is None or layout is None or newest - j >= reach:
+            return True
+        return held[-1].placed is not None and held[-1].placed.travelled >= item.placed.travelled + layout.map_travel
+
+    def finish(j: int, length: int):  # noqa: ANN202 (the tuple yielded)
         span = centred_window(j, length, window)
-        chosen = [d for i, _, d in held if span.start <= i < span.stop]
+        chosen = [h.described for h in held if span.start <= h.index < span.stop]
         mu, _ = window_means(np.stack([d.means for d in chosen]), np.stack([d.present for d in chosen]))
-        _, frame, described = next(item for item in held if item[0] == j)
-        while held and held[0][0] < j + 1 - half:
+        item = next(h for h in held if h.index == j)
+        grid = None
+        if item.placed is not None and layout is not None:
+            placed = [h for h in held if h.placed is not None]
+            grid = map_grid([h.placed for h in placed], placed.index(item), layout)  # type: ignore[misc]
+        while held and held[0].index < j + 1 - max(half, reach):
             held.popleft()
-        return j, frame, described, mu
+        return j, item.frame, item.described, mu, item.placed, grid
 
     count = 0
     for i, frame in enumerate(frames):
-        held.append((i, frame, describe(geometry.prepare(frame.image, frame.camera))))
+        described = describe(geometry.prepare(frame.image, frame.camera))
+        placed = None
+        if placer is not None and described.label_map is not None:
+            box = geometry.region((frame.image.shape[1], frame.image.shape[0]), frame.camera)
+            placed = placer(frame, described.label_map, box)
+        held.append(_Held(i, frame, described, placed))
         count = i + 1
-        if i - half >= done:
+        while done < count and ready(done, i):
             yield finish(done, count)
             done += 1
     while done < count:
         yield finish(done, count)
         done += 1
+
+
+def layout_placer(config: Config, describer: LostDescriber) -> FramePlacer | None:
+    """What places a map's frames on the road for their layout, unless the layout is off or the model has no
+    road (frames without a camera geometry then simply have none)."""
+    if config.layout.enabled == "off":
+        return None
+    classes = LayoutClasses.of_model(describer.backbone.info.class_names)
+    return None if classes is None else FramePlacer(classes, config.layout, config.motion)
 
 
 def describe_range(frames: Iterable[Frame] | FrameSource, start: int, stop: int | None, config: Config,
@@ -150,17 +190,21 @@ def describe_range(frames: Iterable[Frame] | FrameSource, start: int, stop: int 
     geometry = Geometry.for_backbone(config.camera, config.camera.view_hfov_deg, config.backbone.fit,
                                      describer.backbone.info)
     n_labels = len(describer.groups.label_names)
-    half = config.lost.reference_window // 2
-    first = max(0, start - half)
-    cut = (frame for _, frame in _cut(frames, first, None if stop is None else stop + half))
-    described = _windowed(cut, describer, geometry, config.lost.reference_window, emit_from=start - first)
-    for j, frame, desc, mu in described:
+    placer = layout_placer(config, describer)
+    margin = max(config.lost.reference_window // 2, 2 * config.layout.max_frames if placer is not None else 0)
+    first = max(0, start - margin)
+    cut = (frame for _, frame in _cut(frames, first, None if stop is None else stop + margin))
+    described = _windowed(cut, describer, geometry, config.lost.reference_window, start - first, placer,
+                          config.layout)
+    for j, frame, desc, mu, placed, grid in described:
         index = first + j
         if stop is not None and index >= stop:
             break
         yield index, MapFrame(frame.name, describer.descriptor(desc, mu), desc.evidence, desc.appearance(),
                               frame.position, frame.timestamp, looks(frame.image),
-                              label_frequencies(desc.labels, n_labels), frame.camera)
+                              label_frequencies(desc.labels, n_labels), frame.camera,
+                              layout=pack(grid) if grid is not None else None,
+                              step=placed.step if placed is not None else None)
 
 
 def _cut(frames: Iterable[Frame] | FrameSource, start: int, stop: int | None) -> Iterator[tuple[int, Frame]]:
@@ -213,6 +257,11 @@ def build_map(
         geometry = Geometry.for_backbone(config.camera, config.camera.view_hfov_deg, config.backbone.fit,
                                          describer.backbone.info)
         meta["geometry"] = geometry.record()
+        camera = getattr(frames, "geometry", None)
+        if camera is not None and layout_placer(config, describer) is not None:
+            grid = ("cell", "length", "width", "centre", "max_range", "blur", "map_travel", "max_frames")
+            meta["layout"] = {"settings": {name: getattr(config.layout, name) for name in grid},
+                              "geometry": camera.to_dict()}
     else:
         meta["thumbnail"] = describer.settings()
     n_frames = len(frames) if hasattr(frames, "subset") and hasattr(frames, "__len__") else None  # type: ignore[arg-type]

@@ -33,6 +33,9 @@ Normalisation = Literal["running", "reference"]
 StreamMode = Literal["live", "lossless"]
 IndexUse = Literal["auto", "on", "off"]
 CostsUse = Literal["auto", "every", "looked-up"]
+LayoutUse = Literal["auto", "on", "off"]
+MotionSource = Literal["auto", "odometry", "visual"]
+Follow = Literal["auto", "distance", "frames"]
 
 
 @dataclass(frozen=True)
@@ -173,11 +176,71 @@ class SequenceConfig:
     exclusion: int = 5
     """Confidence compares the best trajectory with the best one ending more than this many
     reference frames away."""
+    follow: Follow = "auto"
+    """What the trajectories are straight in: ``distance`` travelled (where the map and the frames have
+    motion: turns, stops and changes of speed do not bend them), or ``frames`` (reference frames per query
+    frame); ``auto``: distance where both have motion."""
+    distance_window: float = 45.0
+    """Following the distance travelled: the window holds the frames of the last this many metres (at most
+    ``length`` of them), so that its reach does not depend on the frame rate or the speed."""
+    distance_ratios: tuple[float, ...] = (0.8, 0.9, 1.0, 1.1, 1.25)
+    """Following the distance travelled: metres along the map per metre travelled, each with both signs (the
+    route driven the other way): 1 where both odometries agree, the others absorb their scale errors."""
 
 
 def looks_up_costs(config: SequenceConfig, n_frames: int) -> bool:
     """Whether a sequence filter with these settings looks its costs up on a map of ``n_frames``."""
     return config.costs == "looked-up" or (config.costs == "auto" and n_frames >= config.costs_min_frames)
+
+
+@dataclass(frozen=True)
+class LayoutConfig:
+    """The layout of a place on a bird's-eye grid, from a calibrated camera and its motion (see
+    lostx.core.layout): compared turned 180 degrees, it recognises a road seen from its other end."""
+
+    enabled: LayoutUse = "auto"
+    """``auto``: where the frames carry a camera geometry (a dataset's calibration, a bag's camera info, a
+    camera file) and the model has a road class; ``on``: required (an error where it cannot be); ``off``."""
+    cell: float = 2.0
+    """Side of a grid cell, metres."""
+    length: float = 40.0
+    """Metres of road along the camera's axis the grid covers."""
+    width: float = 30.0
+    """Metres across."""
+    centre: float = 15.0
+    """The grid's centre, metres ahead of the camera along its axis."""
+    max_range: float = 60.0
+    """Rays landing further from the camera than this are not used (their ground points are too coarse)."""
+    blur: float = 2.0
+    """Standard deviation of the smoothing, metres."""
+    query_travel: float = 24.0
+    """A live frame's grid gathers the frames of the last this many metres travelled (never future ones)."""
+    map_travel: float = 18.0
+    """A map frame's grid gathers the frames within this many metres travelled on either side of it."""
+    max_frames: int = 12
+    """At most this many frames are gathered into one grid (the most recent ones, or those nearest a map frame)."""
+    across_shift: float = 2.0
+    """The grids are compared shifted sideways up to this many metres (a car in another lane)."""
+    turns: tuple[float, ...] = (0.0,)
+    """The grids are also compared with the query's turned by these angles (degrees) about its centre: views of
+    a curve from its two ends are not exactly 180 degrees apart."""
+    vehicle_weight: float = 0.5
+    """Weight of the vehicles' channel against the others' 1: parked cars come and go between visits."""
+    min_cells: int = 25
+    """Cells both grids must observe for a comparison to count."""
+    weight: float = 3.0
+    """Weight of the layout's standardised score beside LoST-X's in the combined score (lostx.core.match.combined)."""
+
+
+@dataclass(frozen=True)
+class MotionConfig:
+    """How the camera's motion between frames is known (see lostx.core.motion)."""
+
+    source: MotionSource = "auto"
+    """``auto``: the source's odometry where frames carry it, else visual odometry on the frames; ``odometry``:
+    only the source's (frames without none have no motion); ``visual``: always from the frames."""
+    visual_width: int = 800
+    """Frames are resized to this width for visual odometry."""
 
 
 @dataclass(frozen=True)
@@ -300,6 +363,8 @@ class Config:
     sequence: SequenceConfig = field(default_factory=SequenceConfig)
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
     heading: HeadingConfig = field(default_factory=HeadingConfig)
+    layout: LayoutConfig = field(default_factory=LayoutConfig)
+    motion: MotionConfig = field(default_factory=MotionConfig)
     decision: DecisionConfig = field(default_factory=DecisionConfig)
     stream: StreamConfig = field(default_factory=StreamConfig)
 
@@ -350,8 +415,15 @@ LIMITS: dict[str, dict[str, Bounds]] = {
         "length": _AT_LEAST_1, "speeds": _AT_LEAST_0, "acquire_speeds": _ABOVE_0, "anchors": _AT_LEAST_0, "nearest": _AT_LEAST_0,
         "costs_min_frames": _AT_LEAST_1,
         "radius": _AT_LEAST_0, "contrast_window": Bounds(2), "reference_prior": _AT_LEAST_0,
-        "penalty": Bounds(), "exclusion": _AT_LEAST_0,
+        "penalty": Bounds(), "exclusion": _AT_LEAST_0, "distance_window": _ABOVE_0, "distance_ratios": _ABOVE_0,
     },
+    "layout": {
+        "cell": Bounds(0.1, 10), "length": Bounds(1, 200), "width": Bounds(1, 200), "centre": Bounds(0, 200),
+        "max_range": _ABOVE_0, "blur": Bounds(0, 20), "query_travel": _AT_LEAST_0, "map_travel": _AT_LEAST_0,
+        "max_frames": Bounds(1, 200), "across_shift": Bounds(0, 20), "turns": Bounds(-90, 90), "vehicle_weight": Bounds(0, 1),
+        "min_cells": _AT_LEAST_1, "weight": Bounds(0, 100),
+    },
+    "motion": {"visual_width": Bounds(64, 8192)},
     "heading": {"declared_prior": Bounds(0.5, 1), "vote_reliability": Bounds(0.5, 0.999), "switch": Bounds(0, 0.5),
                 "min_confidence": Bounds(0.5, 1)},
     "decision": {"min_confidence": Bounds(0, 1), "calibration_frames": _AT_LEAST_1},

@@ -8,6 +8,8 @@ from typing import TYPE_CHECKING, Any, Literal
 if TYPE_CHECKING:  # only named in annotations: the CLI's parser reads this module's vocabulary without numpy
     import numpy as np
 
+    from .geometry import CameraGeometry
+
 Camera = Literal["front", "rear"]
 CAMERAS: tuple[str, ...] = ("front", "rear")
 Heading = Literal["same", "opposite"]
@@ -34,3 +36,10 @@ class Frame:
     name: str = ""
     """File name or other label of the frame."""
     metadata: dict[str, Any] = field(default_factory=dict)
+    geometry: CameraGeometry | None = None
+    """The camera's intrinsics and its pose on the vehicle, where the source knows them (the layout needs
+    them; ``None``: no layout)."""
+    odometry: tuple[float, float, float] | None = None
+    """The vehicle's pose (x, y in metres, yaw in radians) in the odometry frame of its source, where it
+    has one (wheel or visual odometry, a localisation): only the motion between frames is used, never
+    the pose itself. ``None``: the motion is estimated from the frames (visual odometry)."""

@@ -91,19 +91,42 @@ class Localizer:
                 calibration = calibrate(refmap, self.config, self.matcher.backbone)
                 store(refmap.path, calibration)
         self.calibration = calibration
-        seq = self.config.sequence
-        costs = LookedUpCosts if looks_up_costs(seq, refmap.n_frames) else EveryFrameCosts
-        self.sequence = SequenceFilter(seq.length, tuple(signed(seq.speeds, stopped=True)), seq.radius, seq.penalty,
-                                       costs(refmap.n_frames, seq.length, seq.contrast_window, seq.reference_prior),
-                                       seq.anchors, seq.contrast_window // 2)
+        self.sequence = self._sequence_filter(None)
+        self.following_distance: bool | None = None
+        """Whether the sequence filter follows the distance travelled (where the map and the frames have motion);
+        None before any frame."""
+        self._last_progress: float | None = None
         self.tracker = RouteTracker(self.config.tracker)
         self.heading = HeadingFilter(self.config.heading)
         self._last_timestamp: float | None = None
 
+    def _sequence_filter(self, route: np.ndarray | None) -> SequenceFilter:
+        seq = self.config.sequence
+        costs = LookedUpCosts if looks_up_costs(seq, self.map.n_frames) else EveryFrameCosts
+        speeds = signed(seq.distance_ratios, stopped=False) if route is not None else signed(seq.speeds, stopped=True)
+        return SequenceFilter(seq.length, tuple(speeds), seq.radius, seq.penalty,
+                              costs(self.map.n_frames, seq.length, seq.contrast_window, seq.reference_prior),
+                              seq.anchors, seq.contrast_window // 2, route, seq.distance_window)
+
+    def _follow(self, progress: float | None) -> None:
+        """Choose what the sequence filter's trajectories are straight in: at a traverse's first frame, and again
+        at the first frame whose distance travelled is known where the first ones' was not (the filter then starts
+        afresh, following the distance)."""
+        follow = self.config.sequence.follow
+        route = self.map.progress if follow != "frames" and progress is not None else None
+        if follow == "distance" and self.map.progress is None:
+            raise InputError("[sequence] follow = distance needs motion for the map and the frames (odometry, or a "
+                             "camera geometry for visual odometry)")
+        if self.following_distance is None or route is not None:
+            self.following_distance = route is not None
+            self.sequence = self._sequence_filter(route)
+
     def reset(self) -> None:
         """Forget everything seen so far (start of a new traverse)."""
         self.matcher.reset()
-        self.sequence.reset()
+        self.sequence = self._sequence_filter(None)
+        self.following_distance = None
+        self._last_progress: float | None = None
         self.tracker.reset()
         self.heading.reset()
         self._last_timestamp = None
@@ -119,7 +142,7 @@ class Localizer:
                     f"frame {frame.id}: timestamp {frame.timestamp} is earlier than the previous frame's "
                     f"{self._last_timestamp}; frames must arrive in time order (reset the localizer for a new traverse)"
                 )
-        matches = self.matcher.match(frame.image, frame.camera)
+        matches = self.matcher.match(frame)
         self.input_check(frame.id, frame.image, matches.same.query_labels)
         if frame.timestamp is not None:
             self._last_timestamp = frame.timestamp
@@ -137,7 +160,14 @@ class Localizer:
         result = matches[heading]
         latency = {k: 1e3 * v for k, v in result.timings.items()}
         if self.config.sequence.enabled:
-            estimate = self._sequence_estimate(frame, result, sure, latency, self._travel_direction(frame, heading, sure))
+            if self.following_distance is None or (not self.following_distance and matches.progress is not None):
+                self._follow(matches.progress)
+            progress = matches.progress if self.following_distance else None
+            if self.following_distance and progress is None:
+                progress = self._last_progress  # the distance moved is not known: as if it stood still
+            self._last_progress = progress
+            estimate = self._sequence_estimate(frame, result, sure, latency, self._travel_direction(frame, heading, sure),
+                                               progress)
         else:
             estimate = self._single_estimate(frame, result, sure)
         estimate.heading_confidence = sure
@@ -161,19 +191,19 @@ class Localizer:
         return confidence >= self.config.decision.min_confidence and heading_sure >= self.config.heading.min_confidence
 
     def _sequence_estimate(self, frame: Frame, result: MatchResult, heading_sure: float, latency: dict,
-                           direction: int) -> Estimate:
+                           direction: int, progress: float | None) -> Estimate:
         cfg = self.config.sequence
         t0 = time.perf_counter()
         costs_before = self.sequence.costs.seconds
         speeds = self._plausible_speeds(direction)
         if direction:
             self.sequence.keep_direction(direction)
-        seq = self.sequence.update(result.map_scores, result.candidates, result.nearest, speeds)
+        seq = self.sequence.update(result.map_scores, result.candidates, result.nearest, speeds, progress)
         runner_up = self.sequence.runner_up(seq.position, cfg.exclusion)
         margin = max(0.0, runner_up - seq.score) if np.isfinite(runner_up) else np.inf
         t1 = time.perf_counter()
         t_costs = t0 + (self.sequence.costs.seconds - costs_before)  # the costs' share of the update
-        warming = seq.frames < cfg.length
+        warming = not self.sequence.full
         confidence = 0.0 if warming else self.calibration.sequence_confidence(margin)
         confident = self._confident(confidence, heading_sure)
         position, speed, trusted = seq.position, seq.speed, confident
@@ -209,7 +239,13 @@ class Localizer:
         the best trajectory's own sign is no independent evidence (restricting the search to it would
         only ever confirm it).
         """
-        if frame.camera is None or sure < self.config.heading.min_confidence:
+        if sure < self.config.heading.min_confidence:
+            return 0
+        if self.following_distance:
+            # Metres along the map's route per metre along the camera's axis: the cameras progress together when
+            # they view the road the same way, against each other from its two ends.
+            return self.map.progress_sign * (1 if heading == "same" else -1)
+        if frame.camera is None:
             return 0
         return 1 if (heading == "same") == (frame.camera == self.map.camera) else -1
 
@@ -218,7 +254,9 @@ class Localizer:
         of one sign when the direction of travel is known."""
         cfg = self.config.sequence
         band = self.tracker.speed_range() if self.config.tracker.enabled else None
-        if band is None:
+        if self.following_distance:
+            speeds = signed(cfg.distance_ratios, stopped=False)
+        elif band is None:
             speeds = signed(cfg.acquire_speeds, stopped=False)
         else:
             speeds = signed(cfg.speeds, stopped=True)
@@ -260,8 +298,14 @@ class Localizer:
                                    density=self.config.verify.density_filter)
                     corr = extra.correspondences(0)
                 correspondences[reference] = corr
+        layout = None
+        if result.layout is not None:
+            answer = self.map.layout_grid(index)
+            # The query's grid as it is, the answer's turned where the query views the route the other way.
+            layout = (result.layout.query.turned() if result.heading == "opposite" else result.layout.query,
+                      answer.turned() if result.heading == "opposite" else answer)
         return Evidence(query_labels=result.query_labels, correspondences=correspondences,
-                        grid=getattr(self.map, "grid", None))
+                        grid=getattr(self.map, "grid", None), layout=layout)
 
     def _position(self, index: int) -> tuple[float, float] | None:
         if self.map.positions is None:
@@ -294,12 +338,15 @@ def calibrate(refmap: ReferenceMap, config: Config, backbone: Backbone | None = 
                                 sequence=dataclasses.replace(seq, enabled=True))
     sequence_margins: list[float] = []
     single: list[float] = []
+    route = refmap.progress
     for stretch in _stretches(refmap.n_frames, config.decision.calibration_frames, 4 * seq.length):
         localizer = Localizer(refmap, quiet, backbone, calibration=UNCALIBRATED)
         for index in stretch:
             matches = localizer.matcher.match_reference(int(index), seq.exclusion)
             if matches is None:
                 continue
+            if route is not None:
+                matches.progress = refmap.progress_sign * float(route[index])
             frame = Frame(id=int(index), image=_NO_PIXELS, camera=refmap.camera)  # type: ignore[arg-type]
             estimate = localizer.update(frame, matches)
             single.append(matches.same.confidence)

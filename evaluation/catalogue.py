@@ -3,6 +3,8 @@ lists them without loading the methods)."""
 
 METHODS: dict[str, str] = {
     "lostx": "LoST-X",
+    "lostx-nolayout": "LoST-X without the layout",
+    "layout": "the layout alone",
     "lost": "LoST",
     "appearance": "appearance (GeM)",
     "thumbnail": "thumbnail (SeqSLAM)",

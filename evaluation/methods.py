@@ -2,7 +2,9 @@
 
 Methods (all on the same frames and the same ground truth):
 
-- ``lostx``: LoST descriptor search + spatial layout verification (the paper's LoST-X);
+- ``lostx``: LoST descriptor search + spatial layout verification (the paper's LoST-X), with the layout of the
+  place on the road where the frames have a camera geometry (lostx.core.layout);
+- ``lostx-nolayout``: LoST-X alone; ``layout``: the layout alone (its weight beside LoST-X made overwhelming);
 - ``lost``: the LoST descriptor alone (the paper's "LoST");
 - ``appearance``: GeM pooling of the same network's features, cosine distance (an
   appearance baseline on the same network, as the paper compares against);
@@ -39,6 +41,7 @@ from lostx.core.describe.describer import LostDescriber
 from lostx.core.errors import InputError, MapError
 from lostx.core.frame import Frame
 from lostx.core.describe.keypoints import KeypointEvidence
+from lostx.core.layout.grid import pack, unpack
 from lostx.core.localizer import Localizer
 from lostx.core.match.matcher import FrameMatch, MatchResult, PlaceMatcher, QueryDescription, uniqueness
 from lostx.core.maps.refmap import ReferenceMap
@@ -54,8 +57,12 @@ from .metrics import (
 )
 
 DEFAULT_TOLERANCES = {"frames": (0.0, 1.0, 2.0), "m": (5.0, 10.0, 20.0, 40.0, 80.0)}
-NETWORK_METHODS = ("lostx", "lost", "appearance")
-HEADING_METHODS = ("lostx", "thumbnail")
+NETWORK_METHODS = ("lostx", "lostx-nolayout", "layout", "lost", "appearance")
+HEADING_METHODS = ("lostx", "lostx-nolayout", "layout", "thumbnail")
+LAYOUT_METHODS = ("lostx-nolayout", "layout")
+"""The methods that differ from ``lostx`` only where the frames have a layout."""
+LAYOUT_ALONE = 100.0
+"""The layout's weight beside LoST-X for the ``layout`` method: LoST-X then only breaks ties."""
 """The methods that can tell the headings apart (a verification mirrored or not, a flipped thumbnail);
 pooled descriptors (LoST alone, GeM) are the same both ways."""
 
@@ -97,7 +104,9 @@ class Run:
 
 
 def _fingerprint(traverse: Traverse, extra: dict) -> str:
-    payload = json.dumps({"frames": traverse.fingerprint(), **extra}, sort_keys=True, default=str)
+    motion = {"geometry": traverse.geometry.to_dict() if traverse.geometry is not None else None,
+              "odometry": None if traverse.odometry is None else hashlib.sha256(traverse.odometry.tobytes()).hexdigest()}
+    payload = json.dumps({"frames": traverse.fingerprint(), **motion, **extra}, sort_keys=True, default=str)
     return hashlib.sha256(payload.encode()).hexdigest()[:16]
 
 
@@ -108,7 +117,9 @@ def _settings_key(config: Config, backbone: Backbone) -> dict:
     features = [info.feature_tensor, info.feature_dim, list(info.grid)]
     # The frames are prepared per camera before the network (field of view, rows ignored, fitting).
     geometry = {"camera": dataclasses.asdict(config.camera), "fit": config.backbone.fit}
-    return {"model": info.model_md5, "backbone": info.name, "features": features, "lost": lost, **geometry}
+    # The layout's grids and the motion they are gathered with.
+    layout = {"layout": dataclasses.asdict(config.layout), "motion": dataclasses.asdict(config.motion)}
+    return {"model": info.model_md5, "backbone": info.name, "features": features, "lost": lost, **geometry, **layout}
 
 
 def reference_maps(pair: DatasetPair, config: Config, cache: Path, methods: Sequence[str],
@@ -154,7 +165,7 @@ def query_descriptions(traverse: Traverse, matcher: PlaceMatcher, cache: Path, c
     out = []
     for frame in tqdm(traverse, total=len(traverse), desc="describing queries", unit="frame",
                       disable=not progress, leave=False):
-        out.append(matcher.describe(frame.image, appearance=True, camera=frame.camera))
+        out.append(matcher.describe(frame, appearance=True))
     _save_descriptions(path, out)
     return out
 
@@ -167,10 +178,16 @@ def _save_descriptions(path: Path, items: list[QueryDescription]) -> None:
         "appearance": np.stack([d.appearance for d in items]),
         "labels": np.stack([d.labels for d in items]),
         "network": np.array([d.timings.get("network", 0.0) for d in items]),
+        "progress": np.array([np.nan if d.progress is None else d.progress for d in items]),
         "keypoints": ev.keypoints, "evidence_labels": ev.labels, "slot_keys": ev.slot_keys,
         "slot_offsets": ev.slot_offsets, "channels": ev.channels, "values": ev.values, "slot_norms": ev.slot_norms,
         "frame_slots": slots, "grid": np.array(ev.grid), "feature_dim": np.array(ev.feature_dim),
     }
+    if all(d.layout is not None for d in items):
+        packed = [pack(d.layout) for d in items]  # type: ignore[arg-type]
+        arrays["layout_values"] = np.stack([v for v, _ in packed])
+        arrays["layout_mask"] = np.stack([m for _, m in packed])
+        arrays["layout_shape"] = np.array(items[0].layout.mask.shape)  # type: ignore[union-attr]
     tmp = path.with_name(path.name + ".partial.npz")
     np.savez(tmp, **arrays)
     tmp.replace(path)
@@ -191,8 +208,11 @@ def _load_descriptions(path: Path) -> list[QueryDescription]:
             channels=data["channels"][e0:e1], values=data["values"][e0:e1], slot_norms=data["slot_norms"][lo:hi],
             grid=grid, feature_dim=int(data["feature_dim"]),
         )
+        layout = (unpack(data["layout_values"][i], data["layout_mask"][i], tuple(data["layout_shape"]))
+                  if "layout_values" in data else None)
+        progress = float(data["progress"][i]) if np.isfinite(data["progress"][i]) else None
         out.append(QueryDescription(data["descriptor"][i], data["appearance"][i], evidence, data["labels"][i],
-                                    {"network": float(data["network"][i]), "descriptor": 0.0}))
+                                    {"network": float(data["network"][i]), "descriptor": 0.0}, layout, progress))
     return out
 
 
@@ -222,14 +242,26 @@ def single_results(method: str, pair: DatasetPair, maps: dict[str, ReferenceMap]
         if refs is None:
             raise MapError(f"{maps['lost'].path} holds no appearance descriptors; rebuild it")
         return [appearance_result(d.appearance, refs, config) for d in descriptions]
-    verify_cfg = dataclasses.replace(config.verify, enabled=method == "lostx")
-    matcher = PlaceMatcher(maps["lost"], dataclasses.replace(config, verify=verify_cfg), backbone)
+    matcher = PlaceMatcher(maps["lost"], method_config(method, config), backbone)
     return [matcher.match_description(d) for d in descriptions]
+
+
+def method_config(method: str, config: Config) -> Config:
+    """The settings a method runs with: LoST alone does not verify; LoST-X without the layout turns it off; the
+    layout alone outweighs LoST-X."""
+    verify = dataclasses.replace(config.verify, enabled=method != "lost")
+    layout = config.layout
+    if method == "lostx-nolayout":
+        layout = dataclasses.replace(layout, enabled="off")
+    elif method == "layout":
+        layout = dataclasses.replace(layout, weight=LAYOUT_ALONE)
+    return dataclasses.replace(config, verify=verify, layout=layout)
 
 
 def runs_of(method: str, matches: list[FrameMatch], refmap: ReferenceMap, query: Traverse, config: Config,
             backbone: Backbone | None, modes: Sequence[str]) -> list[Run]:
     """Each mode through the localizer's own stages (heading, and the sequence filter and tracker)."""
+    config = method_config(method, config)
     out = []
     for mode in modes:
         sequence = dataclasses.replace(config.sequence, enabled=mode == "sequence")
@@ -287,6 +319,10 @@ def evaluate_pair(
         descriptions = query_descriptions(pair.query, describer, cache, config, progress)
     log(f"described {len(pair.reference)} reference and {len(pair.query)} query frames "
         f"in {time.perf_counter() - start:.1f} s (cache: {cache})")
+    if "lost" in maps and maps["lost"].layout_settings is None and any(m in LAYOUT_METHODS for m in methods):
+        log("the reference frames carry no camera geometry: no layout, so " + " and ".join(
+            m for m in methods if m in LAYOUT_METHODS) + " are left out (they would be LoST-X)")
+        methods = [m for m in methods if m not in LAYOUT_METHODS]
     runs: list[Run] = []
     for method in methods:
         results = single_results(method, pair, maps, config, descriptions, backbone, progress)

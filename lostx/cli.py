@@ -25,7 +25,7 @@ from lostx import __version__  # noqa: E402
 from lostx.core.errors import LostxError  # noqa: E402
 from lostx.stream.processes import exit_with_parent  # noqa: E402
 
-COMMANDS = ("demo", "map", "match", "eval", "serve", "replay", "listen", "keys", "backbones")
+COMMANDS = ("demo", "map", "match", "eval", "serve", "replay", "listen", "keys", "backbones", "camera")
 
 
 class Parser(argparse.ArgumentParser):

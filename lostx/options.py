@@ -118,11 +118,19 @@ def config_from_args(args: argparse.Namespace) -> Config:
 SOURCE_FORMATS = ("folder", "robotcar", "bag", "video", "nuscenes")
 
 
-def add_source_options(parser: argparse.ArgumentParser, *, format: bool = True, reverse: bool = False) -> None:
-    """How to read a traverse: its format, a bag's topics, a nuScenes scene, which frames (docs/datasets.md)."""
+CAMERA_FILE_HELP = ("the camera's intrinsics and mounting (a TOML camera file, see docs/datasets.md), in place of "
+                    "the source's own calibration or a camera.toml beside its frames")
+
+
+def add_source_options(parser: argparse.ArgumentParser, *, format: bool = True, reverse: bool = False,
+                       camera_file: bool = True) -> None:
+    """How to read a traverse: its format, a bag's topics, a nuScenes scene, which frames, the camera's
+    geometry (docs/datasets.md)."""
     group = parser.add_argument_group("source (see docs/datasets.md)")
     if format:
         group.add_argument("--format", choices=SOURCE_FORMATS, help="the source's format (default: recognised)")
+    if camera_file:
+        group.add_argument("--camera-file", type=Path, metavar="PATH", help=CAMERA_FILE_HELP)
     group.add_argument("--topic", help="bag: the image topic (sensor_msgs/Image or CompressedImage; "
                        "default: the bag's only one)")
     group.add_argument("--pose-topic", metavar="TOPIC", help="bag: the positions topic (Odometry, PoseStamped "
@@ -145,7 +153,8 @@ def source_options_from_args(args: argparse.Namespace):
     from lostx.replay.dataset import SourceOptions
 
     return SourceOptions(topic=args.topic, pose_topic=args.pose_topic, scene=args.scene, channel=args.channel,
-                         look_at=args.look_at, every=args.every, fps=args.fps)
+                         look_at=args.look_at, every=args.every, fps=args.fps,
+                         camera_file=getattr(args, "camera_file", None))
 
 
 def print_notes(notes: list[str]) -> None:

@@ -7,7 +7,9 @@ timed by their header stamps. Positions come from one pose topic
 (``nav_msgs/msg/Odometry``, ``geometry_msgs/msg/PoseStamped``,
 ``geometry_msgs/msg/PoseWithCovarianceStamped``: x, y in metres; or
 ``sensor_msgs/msg/NavSatFix``: latitude, longitude) interpolated linearly at the
-image stamps; images outside the pose topic's time span are dropped (noted).
+image stamps; images outside the pose topic's time span are dropped (noted). The pose topics
+but NavSatFix also give the odometry (x, y and the heading, interpolated likewise), and the
+camera's geometry comes from its ``camera_info`` topic and ``/tf_static`` (:mod:`.bagcamera`).
 Needs the ``mcap`` and ``mcap-ros2-support`` packages (``pip install "lostx[bags]"``).
 """
 
@@ -25,9 +27,11 @@ from tqdm import tqdm
 from lostx.core.errors import ImageError, InputError, LostxError
 from lostx.core.frame import Camera
 
+from .bagcamera import bag_camera
 from .folder import Traverse
+from .odometry import interpolate_poses
 from .positions import locate
-from .rosmsg import IMAGE_TYPES, NAV_SAT_FIX, POSE_TYPES, image_rgb, pose_xy, stamp_ns
+from .rosmsg import IMAGE_TYPES, NAV_SAT_FIX, POSE_TYPES, image_rgb, pose_xy, pose_yaw, stamp_ns
 from .store import file_identity
 
 BAG_SUFFIX = ".mcap"
@@ -289,10 +293,11 @@ def bag_traverse(
         if np.any(stamps == 0):
             notes.append(f"{int((stamps == 0).sum())} images without a header stamp: timed by their log time")
             stamps = np.where(stamps == 0, log_time, stamps)
-        positions = geo = None
+        positions = geo = odometry = None
+        pose_child = None
         if len(found) == 1:
             poses = found[0]
-            sample_times, values = _pose_samples(bags, poses)
+            sample_times, values, yaws, pose_child = _pose_samples(bags, poses)
             if len(sample_times) < 2:
                 raise InputError(f"{path}: topic {poses.name} has {len(sample_times)} usable poses; "
                                  f"positions need at least two")
@@ -307,13 +312,18 @@ def bag_traverse(
                 file_index, log_time, rank, stamps = (a[inside] for a in (file_index, log_time, rank, stamps))
             positions, geo = located.positions, located.geo
             notes.append(f"positions from {poses.describe()}")
+            if np.isfinite(yaws).all():
+                odometry = interpolate_poses(sample_times, np.column_stack([values, yaws]), stamps)
+        calibration = bag_camera(bags, topics, image_topic.name, pose_child, "rect" in image_topic.name)
+        if calibration.note:
+            notes.append(calibration.note)
     finally:
         for bag in bags:
             bag.close()
     files = [bag.path for bag in bags]
     images = BagImages(path, files, image_topic.name, image_topic.schema, file_index, log_time, rank, stamps)
     return Traverse(f"{path.name}{image_topic.name}", images, positions, stamps.astype(np.float64) / 1e9,
-                    camera, mirror, geo=geo, notes=notes)
+                    camera, mirror, geo=geo, notes=notes, geometry=calibration.geometry, odometry=odometry)
 
 
 def _merged_topics(bags: list[BagFile]) -> dict[str, Topic]:
@@ -351,9 +361,11 @@ def _index_images(bags: list[BagFile], topic: Topic) -> tuple[np.ndarray, np.nda
     return table[:, 0], table[:, 1], table[:, 2], table[:, 3]
 
 
-def _pose_samples(bags: list[BagFile], topic: Topic) -> tuple[np.ndarray, np.ndarray]:
-    """Time-ordered (stamp ns, (x, y) or (lat, lon)) of a pose topic; fixes without a position left out."""
-    times, values = [], []
+def _pose_samples(bags: list[BagFile], topic: Topic) -> tuple[np.ndarray, np.ndarray, np.ndarray, str | None]:
+    """Time-ordered (stamp ns, (x, y) or (lat, lon), heading in radians or NaN) of a pose topic, fixes
+    without a position left out; and the vehicle frame the poses are of (an Odometry's child frame)."""
+    times, values, yaws = [], [], []
+    child = None
     for bag in bags:
         for logged, decode in bag.messages(topic.name):
             message = decode()
@@ -362,8 +374,12 @@ def _pose_samples(bags: list[BagFile], topic: Topic) -> tuple[np.ndarray, np.nda
                 continue
             times.append(stamp_ns(message) or logged)
             values.append(xy)
+            yaw = pose_yaw(message, topic.schema)
+            yaws.append(np.nan if yaw is None else yaw)
+            child = child or (str(getattr(message, "child_frame_id", "")).lstrip("/") or None)
     order = np.argsort(np.asarray(times, dtype=np.int64), kind="stable")
     t = np.asarray(times, dtype=np.int64)[order]
     v = np.asarray(values, dtype=np.float64).reshape(-1, 2)[order]
+    h = np.asarray(yaws, dtype=np.float64)[order]
     keep = np.concatenate([[True], np.diff(t) > 0]) if len(t) else np.zeros(0, bool)  # one sample per stamp
-    return t[keep], v[keep]
+    return t[keep], v[keep], h[keep], child

@@ -12,7 +12,7 @@ from __future__ import annotations
 import re
 import threading
 import time
-from typing import Callable, Iterator, Protocol
+from typing import TYPE_CHECKING, Callable, Iterator, Protocol
 
 import numpy as np
 
@@ -20,6 +20,9 @@ from lostx.core.errors import InputError
 from lostx.core.frame import Camera, Frame
 
 from .video import open_capture
+
+if TYPE_CHECKING:
+    from lostx.core.geometry import CameraGeometry
 
 PATTERN = re.compile(r"camera:(\d+)")
 
@@ -49,9 +52,12 @@ class LiveCamera:
         camera: Camera | None = None,
         opener: Callable[[int], Capture] = open_capture,
         clock: Callable[[], float] = time.time,
+        geometry: CameraGeometry | None = None,
     ) -> None:
         self.index = index
         self.camera = camera
+        self.geometry = geometry
+        """The camera's intrinsics and mounting (a camera file), carried by every frame."""
         self._capture = opener(index)
         if not self._capture.isOpened():
             self._capture.release()
@@ -89,7 +95,7 @@ class LiveCamera:
                     self.dropped += 1
                 rgb = np.ascontiguousarray(image[:, :, ::-1]) if image.ndim == 3 else np.stack([image] * 3, axis=2)
                 self._latest = Frame(id=self.captured, image=rgb, timestamp=stamp, camera=self.camera,
-                                     name=f"{self.name}#{self.captured}")
+                                     name=f"{self.name}#{self.captured}", geometry=self.geometry)
                 self.captured += 1
                 self._condition.notify_all()
 

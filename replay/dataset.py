@@ -15,6 +15,12 @@ Formats (``format=`` or recognised from the path):
 - ``vprbench`` and ``pairs`` name reference/query pairs; they are opened as pairs by
   :func:`lostx.evaluation.datasets.open_pair`.
 
+Every format's frames may carry the camera's geometry and the vehicle's odometry
+(``Traverse.geometry``, ``Traverse.odometry``): a dataset's or a bag's calibration and poses,
+or, for a folder, a ``camera.toml`` and an ``odometry.csv`` beside the frames (a video: a
+``camera.toml`` in its folder); ``SourceOptions.camera_file`` overrides the geometry of any source
+(:mod:`.calibration`, :mod:`.odometry`).
+
 Recognition: an ``.mcap`` file or a folder of them is a bag; a file with a video suffix
 is a video; a folder with ``ref/`` and ``query/`` is VPR-Bench; one with a RobotCar camera
 folder or timestamps file is RobotCar; one with nuScenes tables (or nuScenes camera
@@ -31,9 +37,11 @@ from lostx.core.frame import Camera
 from lostx.core.images import list_images
 
 from .bag import bag_traverse, is_bag
+from .calibration import calibrate, mirror_calibration
 from .folder import Traverse, folder_traverse
 from .formats import FORMATS, Format
 from .nuscenes import is_nuscenes, nuscenes_traverse
+from .odometry import ODOMETRY_FILE, read_odometry_csv
 from .robotcar import is_robotcar, robotcar_traverse
 from .subsample import select_frames
 from .video import VIDEO_SUFFIXES, is_video, video_traverse
@@ -60,6 +68,9 @@ class SourceOptions:
     """Keep every N-th frame."""
     fps: float | None = None
     """Keep frames at this rate of recorded time (needs timestamps)."""
+    camera_file: Path | None = None
+    """A camera file (intrinsics and mounting, see docs/datasets.md) for the frames, in place of any
+    geometry the source carries or a ``camera.toml`` beside its frames."""
 
     def misplaced(self, kind: str) -> list[str]:
         """The options given that a source of format ``kind`` has no use for (as command-line flags)."""
@@ -129,7 +140,7 @@ def open_traverse(
     elif kind in ("folder", "pairs"):
         if positions is None and (path / POSITIONS_FILE).is_file():
             positions = path / POSITIONS_FILE
-        traverse = folder_traverse(path, positions, camera, mirror)
+        traverse = with_odometry_file(folder_traverse(path, positions, camera, mirror), path)
     elif kind == "bag":
         traverse = bag_traverse(path, options.topic, options.pose_topic, camera, mirror)
     elif kind == "video":
@@ -140,4 +151,13 @@ def open_traverse(
         raise InputError(f"{path}: a VPR-Bench folder is a reference/query pair; open it with open_pair")
     else:
         raise InputError(f"unknown dataset format {kind!r}; expected one of {', '.join(FORMATS)}")
+    traverse = calibrate(mirror_calibration(traverse), path, kind, options.camera_file)
     return select_frames(traverse, options.every, options.fps)
+
+
+def with_odometry_file(traverse: Traverse, folder: Path) -> Traverse:
+    """A folder's traverse with the odometry of the ``odometry.csv`` in it, where there is one."""
+    path = folder / ODOMETRY_FILE
+    if not path.is_file():
+        return traverse
+    return replace(traverse, odometry=read_odometry_csv(path, traverse.names, traverse.timestamps))

@@ -10,6 +10,7 @@ import numpy as np
 
 from lostx.core.errors import InputError
 from lostx.core.frame import Camera, Frame
+from lostx.core.geometry import CameraGeometry
 from lostx.core.images import list_images
 
 from .positions import align_positions, read_positions
@@ -45,12 +46,19 @@ class Traverse:
     metadata: dict[str, np.ndarray] = field(default_factory=dict)
     """Per-frame values (each an (N,) array) that each :class:`Frame` carries in its ``metadata``
     (e.g. nuScenes' vehicle and camera headings)."""
+    geometry: CameraGeometry | None = None
+    """The camera's intrinsics and pose on the vehicle, where the source knows them: a dataset's calibration,
+    a bag's camera info and transforms, or a camera file beside the frames."""
+    odometry: np.ndarray | None = None
+    """(N, 3) the vehicle's pose (x, y metres, yaw radians) in the source's odometry frame at each frame, where
+    the source has one (only the motion between frames is used)."""
 
     def __post_init__(self) -> None:
         if isinstance(self.images, list):
             self.images = ImageFiles(self.images)
         n = len(self)
-        arrays = {"positions": self.positions, "timestamps": self.timestamps, "geo": self.geo, **self.metadata}
+        arrays = {"positions": self.positions, "timestamps": self.timestamps, "geo": self.geo,
+                  "odometry poses": self.odometry, **self.metadata}
         for label, array in arrays.items():
             if array is not None and len(array) != n:
                 raise InputError(f"{self.name}: {len(array)} {label} for {n} images")
@@ -99,6 +107,8 @@ class Traverse:
             position=position,  # type: ignore[arg-type]
             name=self.images.name(int(self.rows[index])),
             metadata={key: values[index].item() for key, values in self.metadata.items()},
+            geometry=self.geometry,
+            odometry=tuple(float(v) for v in self.odometry[index]) if self.odometry is not None else None,  # type: ignore[arg-type]
         )
 
     def frame(self, index: int) -> Frame:
@@ -120,6 +130,7 @@ class Traverse:
             positions=self.positions[idx] if self.positions is not None else None,
             timestamps=self.timestamps[idx] if self.timestamps is not None else None,
             geo=self.geo[idx] if self.geo is not None else None,
+            odometry=self.odometry[idx] if self.odometry is not None else None,
             notes=[*self.notes, *([note] if note else [])],
             source_indices=self.rows[idx],
             metadata={key: values[idx] for key, values in self.metadata.items()},

@@ -18,6 +18,12 @@ the point that many metres from it along the direction the camera faces (the
 vehicle's heading turned by the channel's nominal mounting direction). Each frame's
 metadata holds ``vehicle_yaw_deg`` and ``camera_yaw_deg``. CAM_FRONT declares a front
 camera, CAM_BACK a rear one.
+
+The camera's geometry (``Traverse.geometry``) is the channel's ``calibrated_sensor`` record: its
+intrinsics, and its pose on the vehicle (camera to ego, the ego frame x forward, y left, z up on the
+ground), for images of the size the ``sample_data`` records give; CAM_BACK's frames show the car's own
+boot lid along their bottom edge (:data:`CHANNEL_BODY`). The odometry (``Traverse.odometry``) is the ego
+pose of each frame: x, y and the heading in radians.
 """
 
 from __future__ import annotations
@@ -31,7 +37,8 @@ import numpy as np
 
 from lostx.core.errors import InputError
 from lostx.core.frame import Camera
-from lostx.core.images import IMAGE_SUFFIXES
+from lostx.core.geometry import CameraGeometry, quaternion_matrix
+from lostx.core.images import IMAGE_SUFFIXES, decode_file
 
 from .folder import Traverse
 from .store import ImageFiles
@@ -43,6 +50,11 @@ CHANNEL_YAW_DEG = {
 }
 """The direction each camera channel is mounted to face, degrees anticlockwise from the vehicle's heading."""
 CHANNEL_CAMERA: dict[str, Camera] = {"CAM_FRONT": "front", "CAM_BACK": "rear"}
+CHANNEL_BODY = {"CAM_BACK": 0.09}
+"""The share of the image height, at the bottom, that shows the car itself. CAM_BACK sees its boot lid:
+on scene-0523 its top edge is at row 826 of 900 in the middle of the image (0.082 of the height),
+842 a quarter of the way in from either side and 873 at the sides; 0.09 leaves a margin. The other
+channels see none of the car."""
 DEFAULT_CHANNEL = "CAM_FRONT"
 SEARCH_LEVELS = 3
 
@@ -181,6 +193,8 @@ def nuscenes_traverse(
         raise InputError(f"{tables_dir}: ego_pose has no record {exc}") from None
     positions = np.asarray([p["translation"][:2] for p in poses], dtype=np.float64)
     vehicle_yaw = np.asarray([yaw_deg(p["rotation"]) for p in poses])
+    odometry = np.column_stack([positions, np.radians(vehicle_yaw)])
+    geometry = camera_geometry(tables, present[0], located[present[0]["token"]])
     camera_yaw = (vehicle_yaw + CHANNEL_YAW_DEG[chosen_channel] + 180.0) % 360.0 - 180.0
     if look_at is not None:
         positions = look_at_points(positions, camera_yaw, look_at)
@@ -194,7 +208,29 @@ def nuscenes_traverse(
         mirror=mirror,
         notes=notes,
         metadata={"vehicle_yaw_deg": vehicle_yaw, "camera_yaw_deg": camera_yaw},
+        geometry=geometry,
+        odometry=odometry,
     )
+
+
+def camera_geometry(tables: Tables, record: dict, image: Path) -> CameraGeometry:
+    """The calibrated camera of a ``sample_data`` record: intrinsics and camera-to-ego pose from its
+    ``calibrated_sensor`` record, for images of the record's size (or, where it gives none, ``image``'s)."""
+    sensor = tables.sensors[record["calibrated_sensor_token"]]
+    where = f"{tables.folder / 'calibrated_sensor.json'} ({sensor['channel']}, token {sensor['token']})"
+    try:
+        intrinsics = np.asarray(sensor["camera_intrinsic"], dtype=np.float64)
+        rotation = quaternion_matrix(sensor["rotation"])
+        translation = np.asarray(sensor["translation"], dtype=np.float64)
+    except (KeyError, ValueError, TypeError) as exc:
+        raise InputError(f"{where}: not a camera calibration ({type(exc).__name__}: {exc})") from None
+    if intrinsics.shape != (3, 3) or translation.shape != (3,):
+        raise InputError(f"{where}: camera_intrinsic must be 3 x 3 and translation 3 numbers")
+    width, height = int(record.get("width") or 0), int(record.get("height") or 0)
+    if width <= 0 or height <= 0:
+        height, width = decode_file(image).shape[:2]
+    return CameraGeometry.from_pose(intrinsics, rotation, translation, width, height,
+                                    body=CHANNEL_BODY.get(sensor["channel"], 0.0), source=where)
 
 
 def _records_of_folder(tables: Tables, folder: Path, images: dict[str, Path], scene: str | None,

@@ -8,6 +8,7 @@ Layout of one traverse folder (``yyyy-mm-dd-hh-mm-ss/``)::
     mono_rear.timestamps             the same for the rear camera
     gps/ins.csv                      INS at 50 Hz: timestamp, ..., latitude, longitude, ..., northing, easting, ...
     gps/gps.csv                      GPS only (the same position columns); used when ins.csv is absent
+    vo/vo.csv                        visual odometry (optional): relative motions between stereo frames
 
 Timestamps are UNIX microseconds. Images are single-channel 8-bit PNGs holding
 the raw Bayer mosaic; the patterns (GBRG for the stereo cameras, RGGB for the
@@ -21,6 +22,10 @@ Images taken before the first or after the last INS sample have no position
 and are dropped (noted on the traverse): they could not be evaluated.
 Timestamps listed without an image file (chunks not downloaded) are skipped and
 noted; an image file that the timestamps file does not list is an error.
+
+Odometry (``Traverse.odometry``), where ``vo/vo.csv`` is there: its relative motions chained into poses
+and interpolated at each image timestamp (:func:`lostx.replay.odometry.read_robotcar_vo`). The
+sample has no camera calibration, so RobotCar traverses carry no geometry unless given a camera file.
 """
 
 from __future__ import annotations
@@ -38,6 +43,7 @@ from lostx.core.frame import Camera
 from lostx.core.images import decode_file
 
 from .folder import Traverse
+from .odometry import VO_FILE, interpolate_poses, read_robotcar_vo
 from .positions import locate
 from .store import ImageFiles
 
@@ -211,6 +217,7 @@ def robotcar_traverse(
         positions, geo = located.positions, located.geo
     else:
         notes.append(f"no {' or '.join(INS_FILES)}: no positions")
+    odometry = _visual_odometry(root, times, notes)
 
     return Traverse(
         name=f"{root.name}/{folder}",
@@ -221,4 +228,18 @@ def robotcar_traverse(
         mirror=mirror,
         geo=geo,
         notes=notes,
+        odometry=odometry,
     )
+
+
+def _visual_odometry(root: Path, times: np.ndarray, notes: list[str]) -> np.ndarray | None:
+    """Poses at the image ``times`` (microseconds) from ``vo/vo.csv``, where the traverse has one."""
+    path = root / VO_FILE
+    if not path.is_file():
+        return None
+    vo_times, poses = read_robotcar_vo(path)
+    outside = (times < vo_times[0]) | (times > vo_times[-1])
+    if outside.any():
+        notes.append(f"{int(outside.sum())} images outside the time span of {VO_FILE}: their odometry is the "
+                     f"pose at its nearest end")
+    return interpolate_poses(vo_times, poses, times)

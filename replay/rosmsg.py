@@ -1,4 +1,5 @@
-"""ROS 2 messages as lostx needs them: camera images as RGB pixels, poses as positions, header stamps.
+"""ROS 2 messages as lostx needs them: camera images as RGB pixels, poses as positions and headings,
+camera info as intrinsics, transforms as matrices, header stamps.
 
 Works on messages decoded by ``mcap-ros2-support`` (attribute access, ``bytes`` for
 ``uint8[]``), so no ROS installation is involved.
@@ -6,12 +7,14 @@ Works on messages decoded by ``mcap-ros2-support`` (attribute access, ``bytes`` 
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import cv2
 import numpy as np
 
 from lostx.core.errors import ImageError
+from lostx.core.geometry import quaternion_matrix
 
 RAW_IMAGE = "sensor_msgs/msg/Image"
 COMPRESSED_IMAGE = "sensor_msgs/msg/CompressedImage"
@@ -19,6 +22,8 @@ IMAGE_TYPES = (RAW_IMAGE, COMPRESSED_IMAGE)
 NAV_SAT_FIX = "sensor_msgs/msg/NavSatFix"
 POSE_TYPES = ("nav_msgs/msg/Odometry", "geometry_msgs/msg/PoseStamped",
               "geometry_msgs/msg/PoseWithCovarianceStamped", NAV_SAT_FIX)
+CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
+TF_MESSAGE = "tf2_msgs/msg/TFMessage"
 
 # encoding -> (channels, bytes per channel, conversion to RGB from the array as stored; None: already RGB)
 _RAW: dict[str, tuple[int, int, int | None]] = {
@@ -89,14 +94,50 @@ def image_rgb(message: Any, schema: str) -> np.ndarray:
     return compressed_image_rgb(message) if schema == COMPRESSED_IMAGE else raw_image_rgb(message)
 
 
+def _pose(message: Any, schema: str) -> Any:
+    """The ``geometry_msgs/Pose`` of a pose message."""
+    if schema == "geometry_msgs/msg/PoseStamped":
+        return message.pose
+    return message.pose.pose  # Odometry and PoseWithCovarianceStamped hold a PoseWithCovariance
+
+
+def pose_yaw(message: Any, schema: str) -> float | None:
+    """The heading of a pose message, radians anticlockwise about z; None for a NavSatFix (it has none)."""
+    if schema == NAV_SAT_FIX:
+        return None
+    q = _pose(message, schema).orientation
+    w, x, y, z = float(q.w), float(q.x), float(q.y), float(q.z)
+    if w == x == y == z == 0.0:
+        return None  # an unset orientation
+    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+
+def camera_intrinsics(message: Any, rectified: bool) -> tuple[np.ndarray, int, int]:
+    """(3 x 3 K, width, height) of a ``sensor_msgs/CameraInfo``; from its projection matrix P for
+    rectified images (P holds the intrinsics after rectification), else from K."""
+    k = np.asarray(message.k, dtype=np.float64).reshape(3, 3)
+    if rectified:
+        p = np.asarray(message.p, dtype=np.float64).reshape(3, 4)
+        if p[0, 0] > 0:
+            k = p[:, :3]
+    return k, int(message.width), int(message.height)
+
+
+def transform_matrix(transform: Any) -> np.ndarray:
+    """The 4 x 4 matrix of a ``geometry_msgs/Transform`` (the child frame's pose in the parent frame)."""
+    t, q = transform.translation, transform.rotation
+    wxyz = (float(q.w), float(q.x), float(q.y), float(q.z))
+    out = np.eye(4)
+    out[:3, :3] = quaternion_matrix(wxyz) if any(wxyz) else np.eye(3)
+    out[:3, 3] = (float(t.x), float(t.y), float(t.z))
+    return out
+
+
 def pose_xy(message: Any, schema: str) -> tuple[float, float] | None:
     """(x, y) metres of a pose message, (latitude, longitude) degrees of a NavSatFix; None for no fix."""
     if schema == NAV_SAT_FIX:
         if int(message.status.status) < 0:  # STATUS_NO_FIX
             return None
         return float(message.latitude), float(message.longitude)
-    if schema == "geometry_msgs/msg/PoseStamped":
-        position = message.pose.position
-    else:  # Odometry and PoseWithCovarianceStamped hold a PoseWithCovariance
-        position = message.pose.pose.position
+    position = _pose(message, schema).position
     return float(position.x), float(position.y)

@@ -12,12 +12,16 @@ from typing import Any
 
 from lostx.core.config import StreamConfig
 from lostx.core.frame import Frame
+from lostx.core.geometry import CameraGeometry
 
 from .errors import ProtocolError
 from .images import decode_image
 
-VERSION = 2
-"""Schema version carried in every message's ``v``; a receiver refuses any other."""
+VERSION = 3
+"""Schema version carried in every message lostx sends (``v``)."""
+VERSIONS: tuple[int, ...] = (2, 3)
+"""Schema versions a receiver reads; it refuses any other. Version 3 adds a frame's ``odometry`` and
+``geometry``; a version-2 frame that carries them is refused (``unknown_field``), as version 2 always did."""
 
 TOPICS: tuple[bytes, ...] = (b"result", b"error", b"stats")
 """First part of every message on the results channel."""
@@ -28,7 +32,7 @@ ERROR_CODES: dict[str, str] = {
     "malformed": "not one complete msgpack value (truncated, trailing bytes, too deep, over a length limit, bad UTF-8)",
     "not_a_map": "the message is not a msgpack map with string keys",
     "missing_field": "a required field is absent",
-    "bad_version": "v is not the schema version this peer speaks",
+    "bad_version": "v is not a schema version this peer speaks",
     "unknown_type": "type names no message this channel carries",
     "unknown_field": "a field this message type does not have",
     "bad_type": "a field has the wrong msgpack type",
@@ -86,6 +90,10 @@ class FrameMessage:
     name: str = ""
     stream: str | None = None
     metadata: dict[str, Any] = field(default_factory=dict)
+    odometry: tuple[float, float, float] | None = None
+    """The vehicle's pose (x, y metres, yaw radians) in the producer's odometry frame (version 3)."""
+    geometry: CameraGeometry | None = None
+    """The camera's intrinsics and mounting, checked when the message was read (version 3)."""
 
     def to_frame(self) -> Frame:
         """Decode the image (its size was checked when the message was read)."""
@@ -96,7 +104,8 @@ class FrameMessage:
             raise
         return Frame(
             id=self.id, image=image, timestamp=self.timestamp, camera=self.camera,  # type: ignore[arg-type]
-            position=self.position, name=self.name, metadata=self.metadata,
+            position=self.position, name=self.name, metadata=self.metadata, geometry=self.geometry,
+            odometry=self.odometry,
         )
 
 

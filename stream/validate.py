@@ -12,12 +12,14 @@ import math
 from dataclasses import dataclass
 from typing import Any, Callable, Mapping
 
+from lostx.core.errors import InputError
 from lostx.core.frame import CAMERAS, HEADINGS
+from lostx.core.geometry import CameraGeometry
 
 from .errors import ProtocolError
 from .images import ENCODINGS, check_pixels, header_size
 from .messages import (
-    MAX_METADATA_DEPTH, MAX_NAME, VERSION, ErrorMessage, FrameMessage, Hello, JournalInfo, Limits, Result,
+    MAX_METADATA_DEPTH, MAX_NAME, VERSIONS, ErrorMessage, FrameMessage, Hello, JournalInfo, Limits, Result,
     ResultCandidate, Stats, StreamStats, Tag,
 )
 
@@ -28,8 +30,9 @@ def envelope(message: Mapping[str, Any], types: tuple[str, ...]) -> str:
     version = message["v"]
     if not is_int(version):
         raise ProtocolError("bad_version", f"v must be an integer, got a {kind_of(version)}")
-    if version != VERSION:
-        raise ProtocolError("bad_version", f"schema version {version} is not supported (this peer speaks {VERSION})")
+    if version not in VERSIONS:
+        speaks = " and ".join(str(v) for v in VERSIONS)
+        raise ProtocolError("bad_version", f"schema version {version} is not supported (this peer speaks {speaks})")
     if "type" not in message:
         raise ProtocolError("missing_field", "no message type")
     kind = message["type"]
@@ -86,6 +89,12 @@ _FRAME: Schema = {
     "position": (_ARRAY.or_nil(), False), "name": (_STR, False), "stream": (_STR, False),
     "metadata": (_MAP, False),
 }
+_FRAME_V3: Schema = {**_FRAME, "odometry": (_ARRAY.or_nil(), False), "geometry": (_MAP.or_nil(), False)}
+FRAME_SCHEMAS: dict[int, Schema] = {2: _FRAME, 3: _FRAME_V3}
+"""The frame's fields by schema version: version 3 adds ``odometry`` and ``geometry``."""
+GEOMETRY_REQUIRED = ("fx", "fy", "cx", "cy", "width", "height")
+GEOMETRY_FIELDS = (*GEOMETRY_REQUIRED, "x", "y", "z", "yaw", "pitch", "roll", "body")
+"""A frame's ``geometry``: the keys of a camera file (docs/datasets.md)."""
 READY: Schema = {
     "v": (_INT, True), "type": (_STR, True), "session": (_STR, True), "mode": (_STR, True),
     "window": (_UINT, True), "max_message_bytes": (_UINT, True), "max_pixels": (_UINT, True),
@@ -173,7 +182,7 @@ def read_hello(message: Mapping[str, Any]) -> Hello:
 
 
 def read_frame(message: Mapping[str, Any], limits: Limits) -> FrameMessage:
-    f = Fields(message, _FRAME)
+    f = Fields(message, FRAME_SCHEMAS.get(message.get("v"), _FRAME_V3))
     camera = _short_str(f, "camera")
     if camera is not None and camera not in CAMERAS:
         raise ProtocolError("bad_value", f"camera {camera!r} is not one of {', '.join(CAMERAS)}")
@@ -217,7 +226,40 @@ def read_frame(message: Mapping[str, Any], limits: Limits) -> FrameMessage:
         id=int(f.value("id")), camera=camera, encoding=encoding, image=image, shape=shape,
         timestamp=None if timestamp is None else float(timestamp), position=position,
         name=_short_str(f, "name", "") or "", stream=_short_str(f, "stream"), metadata=metadata,
+        odometry=_odometry(f.value("odometry")), geometry=_geometry(f.value("geometry")),
     )
+
+
+def _odometry(value: Any) -> tuple[float, float, float] | None:
+    if value is None:
+        return None
+    if len(value) != 3 or not all(is_number(v) for v in value):
+        raise ProtocolError("bad_value", "odometry must be three finite numbers [x, y, yaw] (metres, radians)")
+    return float(value[0]), float(value[1]), float(value[2])
+
+
+def _geometry(value: Any) -> CameraGeometry | None:
+    """The camera of a frame's ``geometry`` map; a key, value or camera that cannot be is ``bad_value``,
+    naming the field."""
+    if value is None:
+        return None
+    for key, item in value.items():
+        if key not in GEOMETRY_FIELDS:
+            raise ProtocolError("bad_value", f"geometry has no field {key[:MAX_NAME]!r}; its fields: "
+                                             f"{', '.join(GEOMETRY_FIELDS)}")
+        if not is_number(item):
+            raise ProtocolError("bad_value", f"geometry.{key} must be a finite number, got a {kind_of(item)}")
+        if key in ("width", "height") and item != int(item):
+            raise ProtocolError("bad_value", f"geometry.{key} must be a whole number of pixels, got {item!r}")
+    missing = [key for key in GEOMETRY_REQUIRED if key not in value]
+    if missing:
+        raise ProtocolError("bad_value", f"geometry lacks {', '.join(missing)} (intrinsics in pixels and the "
+                                         f"image size they are for)")
+    numbers = {key: int(item) if key in ("width", "height") else float(item) for key, item in value.items()}
+    try:
+        return CameraGeometry(**numbers)
+    except InputError as exc:
+        raise ProtocolError("bad_value", f"geometry.{str(exc).removeprefix('camera ')}") from None
 
 
 def _shape(value: Any) -> tuple[int, ...] | None:

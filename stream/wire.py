@@ -9,7 +9,7 @@ Three channels, all bound by the service:
 * history (ROUTER at the service, DEALER at a listener; with a journal): ``fetch``
   in, ``history`` (journaled answers) or ``error`` back.
 
-Every payload is one msgpack map with ``v`` (schema version) and ``type``.
+Every payload is one msgpack map with ``v`` (schema version: lostx sends 3, reads 2 and 3) and ``type``.
 Decoding never trusts the peer: the size is checked before msgpack sees the
 bytes, msgpack's own length limits stop a hostile length field from
 allocating memory, and every field is checked (:mod:`lostx.stream.validate`);
@@ -78,6 +78,11 @@ def encode_frame(frame: Frame, encoding: str = "raw", quality: int = 90, stream:
         message["stream"] = stream
     if frame.metadata:
         message["metadata"] = frame.metadata
+    if frame.odometry is not None:
+        message["odometry"] = [float(v) for v in frame.odometry]
+    if frame.geometry is not None:
+        message["geometry"] = {key: value if isinstance(value, int) else float(value)
+                               for key, value in frame.geometry.to_dict().items()}
     return _pack(message)
 
 

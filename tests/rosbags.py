@@ -6,6 +6,7 @@ rosbag2 stores (the message, then each type it uses after a separator line).
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Iterable
 
@@ -26,6 +27,9 @@ TYPES = {
     "geometry_msgs/Twist": "geometry_msgs/Vector3 linear\ngeometry_msgs/Vector3 angular",
     "geometry_msgs/TwistWithCovariance": "geometry_msgs/Twist twist\nfloat64[36] covariance",
     "sensor_msgs/NavSatStatus": "int8 status\nuint16 service",
+    "sensor_msgs/RegionOfInterest": "uint32 x_offset\nuint32 y_offset\nuint32 height\nuint32 width\nbool do_rectify",
+    "geometry_msgs/Transform": "geometry_msgs/Vector3 translation\ngeometry_msgs/Quaternion rotation",
+    "geometry_msgs/TransformStamped": "std_msgs/Header header\nstring child_frame_id\ngeometry_msgs/Transform transform",
 }
 MESSAGES = {
     "sensor_msgs/msg/Image": (
@@ -47,6 +51,15 @@ MESSAGES = {
         "std_msgs/Header header\nsensor_msgs/NavSatStatus status\nfloat64 latitude\nfloat64 longitude\n"
         "float64 altitude\nfloat64[9] position_covariance\nuint8 position_covariance_type",
         ["std_msgs/Header", "builtin_interfaces/Time", "sensor_msgs/NavSatStatus"]),
+    "sensor_msgs/msg/CameraInfo": (
+        ("std_msgs/Header header\nuint32 height\nuint32 width\nstring distortion_model\nfloat64[] d\n"
+         "float64[9] k\nfloat64[9] r\nfloat64[12] p\nuint32 binning_x\nuint32 binning_y\n"
+         "sensor_msgs/RegionOfInterest roi"),
+        ["std_msgs/Header", "builtin_interfaces/Time", "sensor_msgs/RegionOfInterest"]),
+    "tf2_msgs/msg/TFMessage": (
+        "geometry_msgs/TransformStamped[] transforms",
+        ["geometry_msgs/TransformStamped", "std_msgs/Header", "builtin_interfaces/Time", "geometry_msgs/Transform",
+         "geometry_msgs/Vector3", "geometry_msgs/Quaternion"]),
 }
 
 
@@ -72,8 +85,10 @@ def compressed_image(rgb: np.ndarray, stamp_ns: int, codec: str = ".png") -> dic
     return {"header": header(stamp_ns), "format": codec.lstrip("."), "data": data.tobytes()}
 
 
-def odometry(x: float, y: float, stamp_ns: int) -> dict:
-    pose = {"position": {"x": x, "y": y, "z": 0.0}, "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}}
+def odometry(x: float, y: float, stamp_ns: int, yaw: float = 0.0) -> dict:
+    """An Odometry of base_link at (x, y) heading ``yaw`` radians anticlockwise."""
+    orientation = {"x": 0.0, "y": 0.0, "z": math.sin(yaw / 2), "w": math.cos(yaw / 2)}
+    pose = {"position": {"x": x, "y": y, "z": 0.0}, "orientation": orientation}
     zero = {"x": 0.0, "y": 0.0, "z": 0.0}
     return {"header": header(stamp_ns, "odom"), "child_frame_id": "base_link",
             "pose": {"pose": pose, "covariance": [0.0] * 36},
@@ -83,6 +98,29 @@ def odometry(x: float, y: float, stamp_ns: int) -> dict:
 def nav_sat_fix(lat: float, lon: float, stamp_ns: int, status: int = 0) -> dict:
     return {"header": header(stamp_ns, "gps"), "status": {"status": status, "service": 1}, "latitude": lat,
             "longitude": lon, "altitude": 0.0, "position_covariance": [0.0] * 9, "position_covariance_type": 0}
+
+
+def camera_info(stamp_ns: int, k: tuple[float, float, float, float], width: int, height: int,
+                frame: str = "camera_optical_frame") -> dict:
+    """A CameraInfo of a pinhole camera without distortion: ``k`` is fx, fy, cx, cy."""
+    fx, fy, cx, cy = k
+    return {"header": header(stamp_ns, frame), "height": height, "width": width, "distortion_model": "plumb_bob",
+            "d": [0.0] * 5, "k": [fx, 0.0, cx, 0.0, fy, cy, 0.0, 0.0, 1.0], "r": [1.0, 0, 0, 0, 1.0, 0, 0, 0, 1.0],
+            "p": [fx, 0.0, cx, 0.0, 0.0, fy, cy, 0.0, 0.0, 0.0, 1.0, 0.0], "binning_x": 0, "binning_y": 0,
+            "roi": {"x_offset": 0, "y_offset": 0, "height": 0, "width": 0, "do_rectify": False}}
+
+
+def transform(parent: str, child: str, translation: tuple[float, float, float],
+              wxyz: tuple[float, float, float, float], stamp_ns: int = 0) -> dict:
+    """A TransformStamped: ``child``'s pose in ``parent``."""
+    w, x, y, z = wxyz
+    return {"header": header(stamp_ns, parent), "child_frame_id": child,
+            "transform": {"translation": dict(zip("xyz", translation)),
+                          "rotation": {"x": x, "y": y, "z": z, "w": w}}}
+
+
+def tf_message(*transforms: dict) -> dict:
+    return {"transforms": list(transforms)}
 
 
 def write_bag(path: Path, messages: Iterable[tuple[str, str, dict, int]]) -> Path:

@@ -59,7 +59,7 @@ def test_the_papers_setup_finds_the_opposite_heading_without_being_told(scene, m
     headings = [e.heading for e in estimates]
     assert headings.count("opposite") == 40
     right, matchable = _right(estimates, maps["rear"], queries)
-    assert (int(right[matchable].sum()), int(matchable.sum())) == (10, 34)  # measured, single frame
+    assert (int(right[matchable].sum()), int(matchable.sum())) == (20, 34)  # measured, single frame, with the layout
     assert not any(e.state == "localized" and not r for e, r in zip(estimates, right))
 
 
@@ -73,9 +73,9 @@ def test_the_road_driven_the_other_way_is_followed_with_a_falling_index(scene, m
     # Once the heading is sure, the declared front camera viewing the map the opposite way drives it the
     # other way: the reference index falls as the query advances.
     settled = [e for e in estimates if not e.warming_up and e.heading_confidence >= 0.9]
-    assert len(settled) == 21 and all(e.speed < 0 for e in settled)
+    assert len(settled) == 28 and all(e.speed < 0 for e in settled)
     right, matchable = _right(estimates, maps["front"], queries)
-    assert (int(right[matchable].sum()), int(matchable.sum())) == (8, 32)  # measured, sequence
+    assert (int(right[matchable].sum()), int(matchable.sum())) == (25, 32)  # measured, sequence, with the layout
     assert not any(e.state == "localized" for e in estimates)  # 40 map frames: too few to be sure of anything
 
 
@@ -86,3 +86,21 @@ def test_a_same_direction_query_reports_same(scene, mosaic, tmp_path):
     estimates = _run(ReferenceMap.open(tmp_path / "even"), front.subset(range(1, 40, 2)), mosaic, sequence=False,
                      declared=False)
     assert [e.heading for e in estimates].count("same") >= 18
+
+
+def test_the_sequence_follows_the_road_through_the_roundabout(scene, maps, mosaic):
+    """Front frames 17 to 33 drive round the roundabout (the car's heading swings by 30 degrees and back, its
+    speed changes): lined up by the distance travelled, the sequence stays on the rear camera's map there;
+    straight in frames, it does not."""
+    queries = open_traverse(scene / "front", options=LOOK_AT)
+    frames = [dataclasses.replace(f, camera=None) for f in queries]
+    roundabout = slice(17, 34)
+    right = {}
+    for follow in ("distance", "frames"):
+        localizer = Localizer(maps["rear"], Config(sequence=SequenceConfig(follow=follow)), mosaic)
+        estimates = [localizer.step(f) for f in frames]
+        assert localizer.following_distance == (follow == "distance")
+        correct, matchable = _right(estimates, maps["rear"], queries)
+        assert matchable[roundabout].all()
+        right[follow] = int(correct[roundabout].sum())
+    assert right == {"distance": 17, "frames": 10}  # measured: every frame of the roundabout, against 10 of 17

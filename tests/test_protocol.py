@@ -13,6 +13,7 @@ import pytest
 
 from lostx.core.decide.estimate import Candidate, Estimate
 from lostx.core.frame import Frame
+from lostx.core.geometry import CameraGeometry
 from lostx.replay.folder import folder_traverse
 from lostx.stream import messages, wire
 from lostx.stream.errors import ProtocolError
@@ -24,6 +25,8 @@ from lostx.stream.sockets import check_bind_endpoint, history_endpoint, is_local
 from lostx.stream.errors import StreamError
 
 LIMITS = Limits()
+GEOMETRY = {"fx": 800.0, "fy": 800.0, "cx": 799.5, "cy": 449.5, "width": 1600, "height": 900, "x": -0.5, "y": 0.0,
+            "z": 1.6, "yaw": 180.0, "pitch": 2.0, "roll": -0.5, "body": 0.09}
 
 
 @pytest.fixture(scope="module")
@@ -57,6 +60,55 @@ def test_lossless_encodings_round_trip_the_exact_frame(night_frame, encoding):
     assert got.metadata == {"k": [1, "a", None]}
     assert message.stream == "run-1"
     assert got.image.flags.writeable  # the localizer owns its copy, not a view of the message
+
+
+def test_version_3_frames_carry_odometry_and_geometry(night_frame):
+    camera = CameraGeometry(**GEOMETRY, source="calibration.toml")
+    frame = dataclasses.replace(night_frame, odometry=(12.5, -3.0, 0.25), geometry=camera)
+    data = wire.encode_frame(frame, "jpeg", stream="run-1")
+    fields = msgpack.unpackb(data)
+    assert fields["v"] == messages.VERSION == 3
+    assert fields["odometry"] == [12.5, -3.0, 0.25] and fields["geometry"] == GEOMETRY
+    message = wire.decode_request(data, LIMITS)
+    assert message.odometry == (12.5, -3.0, 0.25) and message.geometry.to_dict() == GEOMETRY
+    got = message.to_frame()
+    assert got.odometry == (12.5, -3.0, 0.25)
+    assert isinstance(got.geometry, CameraGeometry) and got.geometry.to_dict() == camera.to_dict()
+    assert got.geometry.horizon_row() == pytest.approx(camera.horizon_row())
+    # Only the required keys: the others take a camera file's defaults. Integers are fine where floats are due.
+    fields["geometry"] = {"fx": 800, "fy": 800, "cx": 800, "cy": 450, "width": 1600, "height": 900}
+    got = wire.decode_request(msgpack.packb(fields), LIMITS).to_frame()
+    assert (got.geometry.z, got.geometry.yaw, got.geometry.body) == (1.5, 0.0, 0.0)
+    # Nil is as good as leaving them out; a frame without them sends neither.
+    fields.update(odometry=None, geometry=None)
+    got = wire.decode_request(msgpack.packb(fields), LIMITS).to_frame()
+    assert got.odometry is None and got.geometry is None
+    assert not {"odometry", "geometry"} & set(msgpack.unpackb(wire.encode_frame(night_frame, "raw")))
+
+
+def test_version_2_frames_are_still_read(night_frame):
+    fields = valid_fields(night_frame)
+    fields["v"] = 2
+    got = wire.decode_request(msgpack.packb(fields), LIMITS).to_frame()
+    assert np.array_equal(got.image, night_frame.image) and got.odometry is None and got.geometry is None
+    hello = msgpack.packb({"v": 2, "type": "hello", "stream": "old"})
+    assert wire.decode_request(hello, LIMITS) == Hello("old", None)
+    # And the other way round: what a version-2 service sends a version-3 producer and listener.
+    assert wire.decode_reply(msgpack.packb({"v": 2, "type": "ack", "session": "s", "frame_id": 3}), LIMITS) == \
+        Ack("s", 3)
+
+
+def test_a_bad_geometry_is_refused_naming_its_field(night_frame):
+    fields = valid_fields(night_frame)
+    for geometry, text in (({**GEOMETRY, "fx": -1.0}, "geometry.fx must be a positive number, got -1.0"),
+                           ({**GEOMETRY, "zoom": 2}, "geometry has no field 'zoom'"),
+                           ({**GEOMETRY, "yaw": "back"}, "geometry.yaw must be a finite number, got a string"),
+                           ({"fx": 1.0, "fy": 1.0}, "geometry lacks cx, cy, width, height"),
+                           ({**GEOMETRY, "pitch": 70.0}, "geometry.pitch 70 and roll -0.5 degrees")):
+        fields["geometry"] = geometry
+        error = refused(msgpack.packb(fields))
+        assert (error.code, error.frame_id) == ("bad_value", 3)
+        assert error.text.startswith(text), error.text
 
 
 def test_jpeg_is_close_and_much_smaller(night_frame):
@@ -187,7 +239,8 @@ def test_listener_side_tolerates_new_fields_but_checks_known_ones():
     "change, code",
     [
         ({"v": 1}, "bad_version"),  # the previous version is refused, not misread
-        ({"v": 3}, "bad_version"),
+        ({"v": 4}, "bad_version"),
+        ({"v": 0}, "bad_version"),
         ({"v": "2"}, "bad_version"),
         ({"v": None}, "bad_version"),
         ({"type": "frames"}, "unknown_type"),
@@ -213,6 +266,23 @@ def test_listener_side_tolerates_new_fields_but_checks_known_ones():
         ({"metadata": {"blob": b"\x00"}}, "bad_type"),
         ({"metadata": {"x": float("inf")}}, "bad_value"),
         ({"colour": "red"}, "unknown_field"),
+        ({"odometry": [1.0, 2.0]}, "bad_value"),
+        ({"odometry": [1.0, 2.0, float("nan")]}, "bad_value"),
+        ({"odometry": [1.0, "2", 3.0]}, "bad_value"),
+        ({"odometry": "here"}, "bad_type"),
+        ({"odometry": {"x": 1}}, "bad_type"),
+        ({"geometry": [1, 2]}, "bad_type"),
+        ({"geometry": "camera.toml"}, "bad_type"),
+        ({"geometry": {**GEOMETRY, "fx": -800.0}}, "bad_value"),
+        ({"geometry": {**GEOMETRY, "fx": "800"}}, "bad_value"),
+        ({"geometry": {**GEOMETRY, "z": float("inf")}}, "bad_value"),
+        ({"geometry": {**GEOMETRY, "width": 1600.5}}, "bad_value"),
+        ({"geometry": {**GEOMETRY, "pitch": 75.0}}, "bad_value"),
+        ({"geometry": {**GEOMETRY, "body": 0.95}}, "bad_value"),
+        ({"geometry": {**GEOMETRY, "zoom": 2.0}}, "bad_value"),
+        ({"geometry": {k: v for k, v in GEOMETRY.items() if k != "cy"}}, "bad_value"),
+        ({"v": 2, "odometry": [1.0, 2.0, 0.5]}, "unknown_field"),  # version 2 never had them
+        ({"v": 2, "geometry": GEOMETRY}, "unknown_field"),
     ],
 )
 def test_each_bad_field_is_refused_with_its_code_and_the_frame_id(night_frame, change, code):
@@ -392,8 +462,9 @@ def test_the_bytes_in_the_protocol_doc_are_what_lostx_reads():
     for text, hex_bytes in blocks:
         message = msgpack.unpackb(bytes.fromhex(hex_bytes.replace("\n", " ")))
         assert message["v"] == messages.VERSION
+        keys = set(message) | {k for value in message.values() if isinstance(value, dict) for k in value}
         for key in re.findall(r'"(\w+)":', text):
-            assert key in message, (key, text)
+            assert key in keys, (key, text)
         decoded = {"hello": wire.decode_request, "frame": wire.decode_request, "ack": wire.decode_reply,
                    "fetch": wire.decode_fetch}[message["type"]](bytes.fromhex(hex_bytes.replace("\n", " ")), LIMITS)
         assert decoded is not None

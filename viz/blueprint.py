@@ -56,11 +56,12 @@ def _bounds(x_range: tuple[float, float], y_range: tuple[float, float]) -> rrb.V
 
 def build_blueprint(n_refs: int = 0, image_size: tuple[int, int] | None = None, sequence: bool = True,
                     sequence_width: int = 51, route: np.ndarray | None = None,
-                    plot_window: int = PLOT_WINDOW) -> rrb.Blueprint:
+                    plot_window: int = PLOT_WINDOW, layout: bool = False) -> rrb.Blueprint:
     """The layout. ``image_size`` (width, height of the shown images, where known) frames the match view
     on them, ``n_refs`` (the map's size) the route plot on the whole route, ``route`` (the map's
     positions, where it has them) adds the map view framed on it; ``sequence``: the localizer runs
-    the sequence filter, whose window is ``sequence_width`` references wide."""
+    the sequence filter, whose window is ``sequence_width`` references wide; ``layout``: the map has a layout,
+    whose grids are shown beside the plots."""
     recent = _recent(plot_window)
     bounds = _bounds(*match_bounds(image_size, image_size)) if image_size is not None else None
     hidden = rrb.EntityBehavior(visible=False)
@@ -95,6 +96,9 @@ def build_blueprint(n_refs: int = 0, image_size: tuple[int, int] | None = None, 
         plots = [confidence, position]
     if route is not None:
         plots.append(rrb.Spatial2DView(name="Map", origin=e.MAP, visual_bounds=_bounds(*map_bounds(route))))
+    if layout:
+        plots.append(rrb.Spatial2DView(name="Layout: query | answer (road grey, ground tan, building orange, "
+                                            "vegetation green, vehicle cyan, other violet)", origin=e.LAYOUT))
     return rrb.Blueprint(
         rrb.Horizontal(
             rrb.Vertical(match, rrb.Horizontal(*plots), row_shares=[5, 4]),

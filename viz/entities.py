@@ -29,6 +29,13 @@ LEGEND_SWATCHES = "match/legend/swatches"
 LEGEND_NAMES = "match/legend/names"
 """The classes of this frame's lines: a swatch of each colour, with the class name and count."""
 
+# The layout: the query's bird's-eye grid beside the answer's.
+LAYOUT = "layout"
+LAYOUT_QUERY = "layout/query"
+LAYOUT_ANSWER_PLACE = "layout/answer"
+LAYOUT_ANSWER = "layout/answer/grid"
+LAYOUT_CAPTIONS = "layout/captions"
+
 # Time series.
 CONFIDENCE = "plots/confidence"
 SEQUENCE_COST = "plots/sequence_cost"
@@ -66,5 +73,5 @@ MAP_TRUTH = "map/truth"
 MAP_ERROR = "map/error"
 
 HEAVY = (QUERY_IMAGE, QUERY_LABELS, QUERY_OUTLINE, REFERENCE_IMAGE, REFERENCE_LABELS, REFERENCE_OUTLINE, LINES, CAPTIONS,
-         LEGEND_SWATCHES, LEGEND_NAMES)
+         LEGEND_SWATCHES, LEGEND_NAMES, LAYOUT_QUERY, LAYOUT_ANSWER, LAYOUT_CAPTIONS)
 """Entities whose logging rate is limited (images, label maps, correspondence lines)."""

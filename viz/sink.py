@@ -40,6 +40,7 @@ from . import colours
 from . import entities as e
 from .blueprint import build_blueprint
 from .geometry import map_xy
+from .layout_view import log_layout
 from .match_view import MatchLogger
 from .output import OpenedOutput, open_output
 from .rate import RateGate
@@ -145,7 +146,7 @@ class RerunSink:
     def _layout(self, sequence: bool):
         return build_blueprint(n_refs=self.map.n_frames, image_size=self.match_view.references.display_size(),
                                sequence=sequence, sequence_width=2 * self.settings.sequence_half_width + 1,
-                               route=self.map.positions)
+                               route=self.map.positions, layout=self.map.layout_settings is not None)
 
     # -- the sink protocol -------------------------------------------------------------------
 
@@ -270,6 +271,8 @@ class RerunSink:
     def _log_heavy(self, job: _HeavyJob) -> None:
         self._set_time(job.frame)
         self.match_view.log(job.frame, job.estimate)
+        if self.map.layout_settings is not None:
+            log_layout(self.rec, job.estimate)
         self._log_sequence(job.estimate)
         if self._frame_by_frame:
             self.rec.flush(timeout_sec=0.0)

@@ -56,6 +56,9 @@ class SemanticFrame:
     """X: (D, h, w) float32 deep features."""
     probs: np.ndarray
     """m: (C, h, w) float32 class probabilities over the model's C classes, summing to 1."""
+    label_map: np.ndarray | None = None
+    """(H', W') uint8: the model's own class of each pixel at its score tensor's resolution, over the whole
+    frame it was given (what the layout projects onto the road); None where the backbone gives none."""
 
     @property
     def grid(self) -> tuple[int, int]:

@@ -456,9 +456,11 @@ class ESPNetv2Backbone:
             # Averaging the half-resolution probabilities over each feature cell is an exact area resize.
             probs = F.adaptive_avg_pool2d(torch.softmax(logits, dim=1), tuple(features.shape[2:]))
             probs = probs / probs.sum(dim=1, keepdim=True)
+            labels = logits[0].argmax(dim=0).to(torch.uint8)
         return SemanticFrame(
             features=features[0].contiguous().cpu().numpy(),
             probs=probs[0].contiguous().cpu().numpy(),
+            label_map=labels.cpu().numpy(),
         )
 
     def segment(self, image: np.ndarray) -> np.ndarray:

@@ -163,7 +163,13 @@ class DescribedBackbone(ABC):
         return SemanticFrame(
             features=np.ascontiguousarray(f.transpose(2, 0, 1)),
             probs=probabilities_on_grid(s, self.info.grid, self.description.scores_are == "logits"),
+            label_map=label_map(s),
         )
+
+
+def label_map(scores: np.ndarray) -> np.ndarray | None:
+    """(H, W) uint8 arg-max class of (H, W, C) scores at their own resolution (None beyond 256 classes)."""
+    return scores.argmax(axis=-1).astype(np.uint8) if scores.shape[-1] <= 256 else None
 
 
 def _shape(shape: tuple[int | None, ...]) -> str:

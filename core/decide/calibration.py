@@ -70,11 +70,12 @@ def _rank(sorted_margins: np.ndarray, value: float) -> float:
 
 
 def settings_key(config: Config) -> dict[str, Any]:
-    """What impostor margins depend on: the sequence, verification and tracker-free settings."""
+    """What impostor margins depend on: the sequence, verification and layout settings (not the tracker's)."""
     sequence = dataclasses.asdict(config.sequence)
     sequence.pop("enabled")
     verify = dataclasses.asdict(config.verify)
-    return json.loads(json.dumps({"sequence": sequence, "verify": verify}))
+    layout = dataclasses.asdict(config.layout)
+    return json.loads(json.dumps({"sequence": sequence, "verify": verify, "layout": layout}))
 
 
 KEPT = 8

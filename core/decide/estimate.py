@@ -14,6 +14,7 @@ from typing import Any, Literal
 import numpy as np
 
 from ..frame import Heading
+from ..layout.grid import LayoutGrid
 from ..match.verify import Correspondences
 
 State = Literal["localized", "not_localized"]
@@ -50,6 +51,9 @@ class Evidence:
     """(L, k) per-frame candidate costs in the sequence window, oldest row first (inf = no candidate)."""
     sequence_candidates: np.ndarray | None = None
     """(L, k) the reference indices behind ``sequence_window``; -1 where empty."""
+    layout: tuple[LayoutGrid, LayoutGrid] | None = None
+    """The query's layout grid and the answer's, as they were compared (the answer's turned 180 degrees when the
+    query views the route the opposite way), where the layout took part."""
 
 
 @dataclass

@@ -65,6 +65,32 @@ class Geometry:
             out = fit_aspect(out, self.input_aspect, self.fit)
         return np.ascontiguousarray(out)
 
+    def region(self, size: tuple[int, int], camera: Camera | None) -> tuple[float, float, float, float]:
+        """The part of a ``size`` (width, height) frame that :meth:`prepare` hands the network, as
+        (x0, y0, width, height) in the frame's pixels (beyond the frame where it is padded)."""
+        c = self.cameras
+        w, h = float(size[0]), float(size[1])
+        x0 = y0 = 0.0
+        if camera is not None:
+            top, bottom = c.ignore_top.get(camera, 0.0), c.ignore_bottom.get(camera, 0.0)
+            if top or bottom:
+                first, last = int(round(top * h)), int(h) - int(round(bottom * h))
+                y0, h = y0 + first, float(last - first)
+            hfov = c.hfov_deg.get(camera)
+            if self.view_hfov_deg is not None and hfov is not None and self.view_hfov_deg < hfov:
+                scale = math.tan(math.radians(self.view_hfov_deg) / 2) / math.tan(math.radians(hfov) / 2)
+                cw, ch = max(1, int(round(w * scale))), max(1, int(round(h * scale)))
+                x0, y0 = x0 + (w - cw) // 2, y0 + (h - ch) // 2
+                w, h = float(cw), float(ch)
+        if self.input_aspect is not None and self.fit != "squash" and abs(w / h - self.input_aspect) >= 1e-6:
+            if (self.fit == "crop") == (w / h > self.input_aspect):
+                cw = float(int(round(h * self.input_aspect)))
+                x0, w = x0 + (w - cw) // 2, cw
+            else:
+                ch = float(int(round(w / self.input_aspect)))
+                y0, h = y0 + (h - ch) // 2, ch
+        return x0, y0, w, h
+
     def record(self) -> dict[str, Any]:
         """What a map keeps of how its frames were prepared."""
         c = self.cameras

@@ -28,6 +28,8 @@ class DescribedFrame:
     means: np.ndarray  # (G, D): this frame's own mu_s (Eq. 2)
     present: np.ndarray  # (G,) bool: class s occurs in the frame
     evidence: KeypointEvidence
+    label_map: np.ndarray | None = None
+    """The model's own label map of the frame (:attr:`SemanticFrame.label_map`), for the layout."""
 
     def appearance(self) -> np.ndarray:
         """(D,) GeM-pooled features: the appearance baseline (computed on request, not in the live path)."""
@@ -73,6 +75,7 @@ class LostDescriber:
             means=means,
             present=present,
             evidence=frame_evidence(semantic.features, labels.reshape(h, w)),
+            label_map=semantic.label_map,
         )
 
     def descriptor(self, frame: DescribedFrame, means: np.ndarray) -> np.ndarray:

@@ -57,6 +57,10 @@ class MapFrame:
     """How often the network gave each grouped label in the frame (LoST maps)."""
     camera: str | None = None
     """The camera the frame declared (the map records it when all its frames agree)."""
+    layout: tuple[np.ndarray, np.ndarray] | None = None
+    """The frame's layout grid packed (lostx.core.layout.grid.pack): values and mask bits."""
+    step: np.ndarray | None = None
+    """(3,) the frame's camera ground frame in the previous frame's (lostx.core.motion), where motion is known."""
 
 
 @dataclass
@@ -81,6 +85,12 @@ class MapChunk:
     """(n, L) float64 (L = 0 for thumbnails)."""
     appearance: np.ndarray
     """(n, D) float16, or (0, 0) when not every frame has one."""
+    layout_values: np.ndarray
+    """(n, V) uint8 packed layout grids, or (0, 0) when not every frame has one."""
+    layout_mask: np.ndarray
+    """(n, B) uint8 their observed cells as bits, or (0, 0)."""
+    steps: np.ndarray
+    """(n, 3) float64 each frame's motion from the previous frame, NaN where unknown."""
     keypoints: np.ndarray
     labels: np.ndarray
     frame_slots: np.ndarray
@@ -110,6 +120,10 @@ class MapChunk:
             descriptors = np.stack([f.descriptor for f in frames]).astype(np.uint8)
         appearance = (np.stack([f.appearance for f in frames]).astype(np.float16)
                       if all(f.appearance is not None for f in frames) else np.zeros((0, 0), np.float16))
+        laid = all(f.layout is not None for f in frames)
+        layout_values = (np.stack([f.layout[0] for f in frames]) if laid  # type: ignore[index]
+                         else np.zeros((0, 0), np.uint8))
+        layout_mask = np.stack([f.layout[1] for f in frames]) if laid else np.zeros((0, 0), np.uint8)  # type: ignore[index]
         return cls(
             start=start,
             names=np.array([f.name for f in frames], dtype=str),
@@ -122,6 +136,10 @@ class MapChunk:
             label_frequencies=np.array([f.label_frequencies if f.label_frequencies is not None else np.zeros(n_labels)
                                         for f in frames], dtype=np.float64).reshape(n, n_labels),
             appearance=appearance,
+            layout_values=layout_values.astype(np.uint8),
+            layout_mask=layout_mask.astype(np.uint8),
+            steps=np.array([f.step if f.step is not None else (np.nan, np.nan, np.nan) for f in frames],
+                           dtype=np.float64).reshape(n, 3),
             **packed,
         )
 
@@ -129,7 +147,8 @@ class MapChunk:
         """The sizes the commit needs before it reads the arrays: descriptor and appearance dimensions and
         rows, and the length of every evidence array."""
         return np.array([self.descriptors.shape[1], len(self.appearance), self.appearance.shape[1],
-                         *(len(getattr(self, name)) for name in EVIDENCE)], dtype=np.int64)
+                         *(len(getattr(self, name)) for name in EVIDENCE), len(self.layout_values),
+                         self.layout_values.shape[1], self.layout_mask.shape[1]], dtype=np.int64)
 
     def save(self, path: Path) -> None:
         """Write the chunk to ``path`` (an .npz) atomically."""
@@ -269,6 +288,11 @@ class MapWriter:
                 files["appearance"] = self._stream("appearance", chunks, (n, heads[0]["appearance_dim"]), np.float16)
         else:
             files["descriptors"] = self._stream("descriptors", chunks, (n, heads[0]["dim"]), np.uint8)
+        if all(h["layout"] for h in heads):
+            files["layout_values"] = self._stream("layout_values", chunks, (n, heads[0]["layout_dims"][0]), np.uint8)
+            files["layout_mask"] = self._stream("layout_mask", chunks, (n, heads[0]["layout_dims"][1]), np.uint8)
+        if all(h["has_steps"] for h in heads):
+            files["steps"] = self._stream("steps", chunks, (n, 3), np.float64)
         if has_position.all():
             files["positions"] = self._stream("positions", chunks, (n, 2), np.float64)
         if all(h["has_timestamps"] for h in heads):
@@ -375,7 +399,10 @@ def _head(source: MapChunk | Path) -> dict[str, Any]:
         "appearance_dim": int(head[2]),
         "has_position": ~np.isnan(_field(source, "positions")).any(axis=1),
         "has_timestamps": not np.isnan(_field(source, "timestamps")).any(),
-        "lengths": dict(zip(EVIDENCE, (int(v) for v in head[3:]))),
+        "lengths": dict(zip(EVIDENCE, (int(v) for v in head[3 : 3 + len(EVIDENCE)]))),
+        "layout": int(head[3 + len(EVIDENCE)]) == n,
+        "layout_dims": (int(head[4 + len(EVIDENCE)]), int(head[5 + len(EVIDENCE)])),
+        "has_steps": not np.isnan(_field(source, "steps")).any(),
     }
 
 

@@ -42,6 +42,10 @@ from typing import Any
 import numpy as np
 
 from ..backbones import BackboneInfo, Quantisation
+from ..config import LayoutConfig
+from ..geometry import CameraGeometry
+from ..layout.compare import GridStack
+from ..layout.grid import LayoutGrid, grid_shape, unpack
 from ..describe.keypoints import KeypointEvidence
 from ..describe.lost import DescriptorStats
 from ..errors import MapError
@@ -65,6 +69,7 @@ class ReferenceMap:
         )
         self.timestamps: np.ndarray | None = arrays.get("timestamps")
         self._index: ApproximateIndex | None = None
+        self._layout_stack: GridStack | None = None
         self.backbone: dict[str, Any] | None = manifest.get("backbone")
         if self.kind == "lost":
             self.stats = DescriptorStats(arrays["stats_mean"], arrays["stats_std"], len(self.names))
@@ -158,6 +163,52 @@ class ReferenceMap:
     def nbytes(self) -> int:
         index = self.manifest.get("index") or {}
         return sum(int(e["bytes"]) for e in self.manifest["arrays"].values()) + int(index.get("bytes", 0))
+
+    @property
+    def layout_settings(self) -> LayoutConfig | None:
+        """The grid settings the map's layout was built with (None: a map without a layout)."""
+        recorded = self.manifest.get("layout")
+        if not recorded or "layout_values" not in self._arrays:
+            return None
+        return LayoutConfig(**recorded["settings"])
+
+    @property
+    def camera_geometry(self) -> CameraGeometry | None:
+        """The camera the map's frames were taken with, where it was known."""
+        recorded = (self.manifest.get("layout") or {}).get("geometry")
+        return CameraGeometry(**recorded, source=str(self.path)) if recorded else None
+
+    def layout_grid(self, index: int) -> LayoutGrid:
+        """Map frame ``index``'s layout grid (a map with a layout)."""
+        settings = self.layout_settings
+        assert settings is not None
+        return unpack(self._arrays["layout_values"][index], self._arrays["layout_mask"][index], grid_shape(settings))
+
+    def layout_stack(self) -> GridStack:
+        """Every map frame's layout grid, ready to compare (read once, on first use)."""
+        if self._layout_stack is None:
+            settings = self.layout_settings
+            assert settings is not None
+            shape = grid_shape(settings)
+            grids = [unpack(v, m, shape) for v, m in zip(self._arrays["layout_values"], self._arrays["layout_mask"])]
+            self._layout_stack = GridStack.of(grids)
+        return self._layout_stack
+
+    @property
+    def progress(self) -> np.ndarray | None:
+        """(N,) metres along the map's route at each frame, rising with the index: the distance its camera
+        travelled, where its motion is known (None otherwise). Its sign is in :attr:`progress_sign`."""
+        steps = self._arrays.get("steps")
+        if steps is None:
+            return None
+        steps = np.asarray(steps, dtype=np.float64)
+        return np.concatenate([[0.0], np.cumsum(np.hypot(steps[1:, 0], steps[1:, 1]))])
+
+    @property
+    def progress_sign(self) -> int:
+        """+1 where the map's camera moved the way it looks, -1 where it moved backwards (a rear camera)."""
+        steps = self._arrays.get("steps")
+        return -1 if steps is not None and float(np.sum(np.asarray(steps)[1:, 0])) < 0 else 1
 
     def check_backbone(self, info: BackboneInfo) -> None:
         """Refuse queries described by another backbone than the one that built the map: another name, model

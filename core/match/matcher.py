@@ -1,9 +1,11 @@
-"""Single-frame place matching: describe, search the top k, verify, rank."""
+"""Single-frame place matching: describe, search the top k, verify, rank; with the layout where the map and
+the frames have it (the two cues combined, :mod:`lostx.core.match.combined`)."""
 
 from __future__ import annotations
 
 import dataclasses
 import time
+import warnings
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -16,10 +18,14 @@ from ..describe.describer import LostDescriber, TrailingMeans
 from ..describe.keypoints import KeypointEvidence
 from ..describe.lost import RunningStandardiser
 from ..describe.thumbnail import ThumbnailDescriber
-from ..errors import MapError
-from ..frame import Camera, Heading
+from ..errors import InputError, MapError
+from ..frame import Camera, Frame, Heading
 from ..images import check_frame
+from ..layout.classes import LayoutClasses
+from ..layout.describer import FramePlacer, LiveLayout
+from ..layout.grid import LayoutGrid
 from ..maps.refmap import ReferenceMap
+from .combined import EVERY_FRAME_MAX, CombinedScores, LayoutScores, layout_vote
 from .scores import MapScores
 from .search import CandidateSearch, QueryDistances
 from .verify import Correspondences, Verification, verify
@@ -41,7 +47,11 @@ class QueryDescription:
     labels: np.ndarray
     """(h, w) grouped semantic labels."""
     timings: dict[str, float] = field(default_factory=dict)
-    """Seconds: network, descriptor."""
+    """Seconds: network, descriptor, layout, motion."""
+    layout: LayoutGrid | None = None
+    """The frame's layout grid (gathered over the distance just travelled), where the layout is on."""
+    progress: float | None = None
+    """Metres the stream has advanced along its camera's axis (lostx.core.motion), where its motion is known."""
 
 
 @dataclass
@@ -77,6 +87,9 @@ class MatchResult:
     filter looks its costs up, else the ``verify.top_k`` candidates): where it looks for its anchors."""
     heading: Heading = "same"
     """The heading hypothesis these scores were computed under (the query's x mirrored for ``opposite``)."""
+    layout: LayoutScores | None = None
+    """The layout's similarity with any map frame under this heading (its query grid turned for ``opposite``),
+    where the layout took part."""
 
     @property
     def best(self) -> int:
@@ -103,8 +116,10 @@ class FrameMatch:
     opposite: MatchResult
     heading_evidence: float = 0.0
     """This frame's vote on the heading, in [-1, 1]: the mean over the candidates scored under both
-    hypotheses of sign(score same - score opposite). Positive favours ``opposite``; 0 is no evidence
-    (nothing verified, or a method that cannot tell)."""
+    hypotheses of sign(score same - score opposite) (and, with the layout, the mean of that vote and the
+    layout's). Positive favours ``opposite``; 0 is no evidence (nothing verified, or a method that cannot tell)."""
+    progress: float | None = None
+    """Metres the stream has advanced along its camera's axis at this frame, where its motion is known."""
 
     def __getitem__(self, heading: Heading) -> MatchResult:
         return self.opposite if heading == "opposite" else self.same
@@ -123,6 +138,20 @@ def heading_vote(same: np.ndarray, opposite: np.ndarray) -> float:
     """
     both = np.isfinite(same) & np.isfinite(opposite)
     return float(np.mean(np.sign(same[both] - opposite[both]))) if both.any() else 0.0
+
+
+def margin(candidates: np.ndarray, scores: np.ndarray, exclusion: int) -> float:
+    """s_alt - s_best of signed scores (the combined score, in standard deviations), s_alt the best more than
+    ``exclusion`` frames from the best candidate; the ranks of these margins are what the map calibrates."""
+    if len(scores) == 0 or not np.isfinite(scores[0]):
+        return 0.0
+    far = np.abs(candidates - candidates[0]) > exclusion
+    alt = scores[far][np.isfinite(scores[far])]
+    return float(max(alt.min() - scores[0], 0.0)) if len(alt) else float("inf")
+
+
+class LayoutWarning(UserWarning):
+    """The layout could not take part (said once per stream, with the reason)."""
 
 
 def uniqueness(candidates: np.ndarray, scores: np.ndarray, exclusion: int) -> float:
@@ -177,33 +206,105 @@ class PlaceMatcher:
         self.backbone: Backbone | None = self.describer.backbone if isinstance(self.describer, LostDescriber) else None
         self.last_evidence: KeypointEvidence | None = None
         """The latest LoST query's keypoint evidence (to verify further candidates against)."""
+        self.layout_off: str | None = None
+        """Why the layout takes no part (None while it does, or before a frame showed it cannot)."""
+        self._placer: FramePlacer | None = None
+        self._live: LiveLayout | None = None
+        self._setup_layout()
+
+    def _setup_layout(self) -> None:
+        cfg = self.config.layout
+        if cfg.enabled == "off" or self.map.kind != "lost":
+            self.layout_off = "the layout is switched off" if cfg.enabled == "off" else "a thumbnail map has no layout"
+            return
+        settings = self.map.layout_settings
+        classes = LayoutClasses.of_model(self.backbone.info.class_names) if self.backbone is not None else None
+        if settings is None:
+            self.layout_off = (f"the map {self.map.path} has no layout: it was built from frames without a camera "
+                               f"geometry (give its camera with a camera file and rebuild it)")
+        elif classes is None:
+            self.layout_off = f"the model {self.backbone.info.name} has no road class"  # type: ignore[union-attr]
+        if self.layout_off is not None:
+            if cfg.enabled == "on":
+                raise InputError(f"[layout] enabled = on, but {self.layout_off}")
+            return
+        # The grid as the map drew it; how the frames are gathered and compared as configured.
+        grid = {name: getattr(settings, name) for name in ("cell", "length", "width", "centre", "max_range", "blur")}
+        self.layout_config = dataclasses.replace(cfg, **grid)
+        self._placer = FramePlacer(classes, self.layout_config, self.config.motion)  # type: ignore[arg-type]
+        self._live = LiveLayout(self.layout_config)
+        weights = np.ones(6)
+        weights[4] = cfg.vehicle_weight
+        self._layout_weights = weights
+        self._layout_shifts = int(round(cfg.across_shift / settings.cell))
+
+    def _layout_unavailable(self, reason: str) -> None:
+        """A frame cannot have a layout: say why, once."""
+        if self.layout_off is None:
+            self.layout_off = reason
+            if self.config.layout.enabled == "on":
+                raise InputError(f"[layout] enabled = on, but {reason}")
+            warnings.warn(f"the layout is off: {reason}; matching by LoST-X alone", LayoutWarning, stacklevel=3)
 
     def reset(self) -> None:
         self.last_evidence = None
         if isinstance(self.describer, LostDescriber):
             self.normaliser.reset()
             self.means.reset()
+        if self._placer is not None and self._live is not None:
+            self._placer.reset()
+            self._live.reset()
 
-    def match(self, image: np.ndarray, camera: Camera | None = None) -> FrameMatch:
-        """Match one frame (from the ``camera`` it declares) under both heading hypotheses."""
-        image = check_frame(image)
+    def match(self, frame: Frame | np.ndarray, camera: Camera | None = None) -> FrameMatch:
+        """Match one frame (or a bare image from the ``camera`` it declares) under both heading hypotheses."""
+        if not isinstance(frame, Frame):
+            frame = Frame(id=0, image=frame, camera=camera)
+        image = check_frame(frame.image)
         if isinstance(self.describer, ThumbnailDescriber):
             return self._match_thumbnail(image)
-        return self.match_description(self.describe(image, camera=camera))
+        return self.match_description(self.describe(frame))
 
-    def describe(self, image: np.ndarray, appearance: bool = False, camera: Camera | None = None) -> QueryDescription:
-        """Run the network on a LoST query frame (the expensive, cacheable half of :meth:`match`);
-        ``appearance`` also pools the GeM descriptor of the appearance baseline."""
+    def describe(self, frame: Frame, appearance: bool = False) -> QueryDescription:
+        """Run the network on a LoST query frame, and place it on the road with its layout where that is on
+        (the expensive, cacheable half of :meth:`match`, in stream order); ``appearance`` also pools the GeM
+        descriptor of the appearance baseline."""
         describer = self.describer
         assert isinstance(describer, LostDescriber)
+        image = check_frame(frame.image)
         t0 = time.perf_counter()
-        semantic = describer.backbone(self.geometry.prepare(check_frame(image), camera))
+        semantic = describer.backbone(self.geometry.prepare(image, frame.camera))
         t1 = time.perf_counter()
-        frame = describer.from_semantic(semantic)
-        raw = describer.descriptor(frame, self.means(frame))
+        described = describer.from_semantic(semantic)
+        raw = describer.descriptor(described, self.means(described))
         t2 = time.perf_counter()
-        return QueryDescription(raw, frame.appearance() if appearance else None, frame.evidence, frame.labels,
-                                {"network": t1 - t0, "descriptor": t2 - t1})
+        timings = {"network": t1 - t0, "descriptor": t2 - t1}
+        layout, progress = self._place(frame, described.label_map, timings)
+        return QueryDescription(raw, described.appearance() if appearance else None, described.evidence,
+                                described.labels, timings, layout, progress)
+
+    def _place(self, frame: Frame, label_map: np.ndarray | None,
+               timings: dict[str, float]) -> tuple[LayoutGrid | None, float | None]:
+        """The frame's layout grid and progress, where the layout is on and the frame allows it."""
+        if self._placer is None or self._live is None:
+            return None, None
+        if frame.geometry is None:
+            self._layout_unavailable("the frames carry no camera geometry (a camera file beside them, "
+                                     "--camera-file, or a dataset's calibration gives it)")
+            return None, None
+        if label_map is None:
+            self._layout_unavailable(f"the backbone {self.backbone.info.name} gives no label map")  # type: ignore[union-attr]
+            return None, None
+        t0 = time.perf_counter()
+        box = self.geometry.region((frame.image.shape[1], frame.image.shape[0]), frame.camera)
+        placed = self._placer(frame, label_map, box)
+        t1 = time.perf_counter()
+        if placed is None:
+            self._layout_unavailable("the frames' motion is unknown (no odometry, and visual odometry is off)")
+            return None, None
+        grid = self._live.add(placed)
+        timings["motion"] = t1 - t0
+        timings["layout"] = time.perf_counter() - t1
+        return grid, placed.progress if placed.known else None
 
     def _match_thumbnail(self, image: np.ndarray) -> FrameMatch:
         t0 = time.perf_counter()
@@ -249,7 +350,10 @@ class PlaceMatcher:
         self.last_evidence = query.evidence
         t0 = time.perf_counter()
         vector = self.normaliser(query.descriptor)
-        return self._search_and_verify(vector, query.evidence, query.labels, {**query.timings}, t0)
+        match = self._search_and_verify(vector, query.evidence, query.labels, {**query.timings}, t0,
+                                        layout=query.layout)
+        match.progress = query.progress
+        return match
 
     def match_reference(self, index: int, exclude: int) -> FrameMatch | None:
         """Map frame ``index`` as a query, with the reference frames within ``exclude`` of it removed:
@@ -264,10 +368,13 @@ class PlaceMatcher:
         if isinstance(self.describer, ThumbnailDescriber):
             flipped = query.reshape(self.describer.size[1], -1)[:, ::-1].ravel()
             return self._thumbnail_match({"same": query, "opposite": flipped}, t0, removed)
-        return self._search_and_verify(query, self.map.evidence([index]), self.map.labels(index), {}, t0, removed)
+        layout = self.map.layout_grid(index) if self._live is not None else None
+        return self._search_and_verify(query, self.map.evidence([index]), self.map.labels(index), {}, t0, removed,
+                                       layout)
 
     def _search_and_verify(self, vector: np.ndarray, evidence: KeypointEvidence, labels: np.ndarray,
-                           timings: dict[str, float], t0: float, removed: slice | None = None) -> FrameMatch:
+                           timings: dict[str, float], t0: float, removed: slice | None = None,
+                           layout: LayoutGrid | None = None) -> FrameMatch:
         cfg = self.config.verify
         distance_of = QueryDistances(self.search, vector)
         nearest, near = self.search.nearest(vector, self._nearest_count, removed, distance_of)
@@ -307,7 +414,41 @@ class PlaceMatcher:
                 nearest=nearest,
                 heading=heading,  # type: ignore[arg-type]
             )
-        return FrameMatch(answers["same"], answers["opposite"], heading_vote(result.scores, result.mirror_scores))
+        vote = heading_vote(result.scores, result.mirror_scores)
+        if layout is not None and self._live is not None:
+            t2 = time.perf_counter()
+            answers, vote = self._with_layout(answers, layout, distance_of, result, vote, removed)
+            timings["layout compare"] = time.perf_counter() - t2
+        return FrameMatch(answers["same"], answers["opposite"], vote)
+
+    def _with_layout(self, answers: dict[str, MatchResult], grid: LayoutGrid, distance_of: QueryDistances,
+                     verified: Verification, lost_vote: float,
+                     removed: slice | None) -> tuple[dict[str, MatchResult], float]:
+        """Each heading's answer ranked by LoST-X and the layout combined, and the two cues' heading votes."""
+        cfg = self.config
+        stack = self.map.layout_stack()
+        views = {"same": grid, "opposite": grid.turned()}
+        out = {}
+        for heading, lost in answers.items():
+            layout = LayoutScores(views[heading], stack, self._layout_weights, self._layout_shifts,
+                                  cfg.layout.min_cells, cfg.layout.turns)
+            combined = without(CombinedScores(lost.map_scores, layout, cfg.layout.weight), removed)  # type: ignore[arg-type]
+            n = self.map.n_frames
+            pool = np.arange(n) if n <= EVERY_FRAME_MAX else np.union1d(lost.nearest, lost.candidates)  # type: ignore[arg-type]
+            if removed is not None:
+                pool = pool[(pool < removed.start) | (pool >= removed.stop)]
+            scores = combined.at(pool)
+            order = np.lexsort((pool, scores))[: cfg.verify.top_k]
+            candidates, ranked = pool[order], scores[order]
+            rows = {int(r): i for i, r in enumerate(lost.shortlist)}  # type: ignore[union-attr]
+            counts = verified.n_matches
+            out[heading] = dataclasses.replace(
+                lost, candidates=candidates, distances=distance_of(candidates), scores=ranked,
+                confidence=margin(candidates, ranked, cfg.verify.uniqueness_exclusion),
+                n_matches=np.array([counts[rows[int(c)]] if int(c) in rows else 0 for c in candidates]),
+                map_scores=combined, layout=layout)
+        vote = 0.5 * (lost_vote + layout_vote(out["same"].layout, out["opposite"].layout))  # type: ignore[arg-type]
+        return out, vote
 
 
 def _around(n: int, index: int, radius: int) -> slice:

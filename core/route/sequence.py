@@ -11,7 +11,10 @@ filter looks, never for the whole map (``sequence.costs``: on large maps).
 A *trajectory* is a straight line in the (frame, reference) plane through
 one anchor (t_a, r_a) of a frame in the window, at a speed v from the
 configured set (reference frames per query frame; 0 = stopped):
-r(t) = r_a + v (t - t_a). On it, frame t costs
+r(t) = r_a + v (t - t_a). Where the map and the frames have motion, the line is straight in the distance
+travelled instead: the map's route position P(r) (metres travelled along it) follows the frames' progress q_t
+(metres advanced along their camera's axis), P(r(t)) = P(r_a) + v (q_t - q_{t_a}), v in metres per metre, so
+that turns, stops and changes of speed do not bend it. On it, frame t costs
 
     cost_t = min { c_t(r) : |r - r(t)| <= radius },  or the penalty where r(t) is off the map,
 
@@ -74,6 +77,7 @@ class SequenceResult:
     position: float
     """Position of the best trajectory at the newest frame, in reference frames (fractional)."""
     speed: float
+    """Reference frames per query frame at the newest frame (negative: the index falling)."""
     score: float
     """Mean cost along the best trajectory (lower is better)."""
     frames: int
@@ -86,10 +90,14 @@ class SequenceFilter:
     """Rolling window of the last ``length`` frames, scoring straight trajectories through their anchors."""
 
     def __init__(self, length: int, speeds: tuple[float, ...], radius: int, penalty: float, costs: WindowCosts,
-                 anchors: int = 0, neighbourhood: int = 0) -> None:
+                 anchors: int = 0, neighbourhood: int = 0, route: np.ndarray | None = None,
+                 reach: float | None = None) -> None:
         """``costs``: where the window's costs come from; ``anchors``: how many of a frame's lowest costs
         anchor trajectories besides its candidates; ``neighbourhood``: how far around each seed (a nearest
-        map frame of the frame's search) they are looked for, where not every cost is known."""
+        map frame of the frame's search) they are looked for, where not every cost is known. ``route``: the
+        map's route position P(r) of every map frame (rising), to follow the distance travelled (each
+        :meth:`update` then gives the frame's progress); None: trajectories straight in frames. ``reach``: the
+        window then holds the frames of the last this many metres (at most ``length`` of them)."""
         if length < 1 or not speeds:
             raise ValueError("the sequence window needs at least one frame and one speed")
         self.length = length
@@ -99,15 +107,19 @@ class SequenceFilter:
         self.costs = costs
         self.anchors = int(anchors)
         self.neighbourhood = int(neighbourhood)
+        self.route = None if route is None else np.asarray(route, dtype=np.float64)
+        self.reach = reach
         self.reset()
 
     def reset(self) -> None:
         self._t = -1
         self._times: deque[int] = deque()
+        self._progress: deque[float] = deque()
         self.costs.reset()
-        # Live trajectories: anchor time, anchor reference, speed, and one cost per window column
-        # (column i holds frame t - length + 1 + i).
+        # Live trajectories: anchor time, anchor progress and route position, speed, and one cost per window
+        # column (column i holds frame t - length + 1 + i).
         self._anchor_t = np.zeros(0, dtype=np.int64)
+        self._anchor_q = np.zeros(0)
         self._anchor_r = np.zeros(0)
         self._speed = np.zeros(0)
         self._costs = np.zeros((0, self.length))
@@ -117,12 +129,20 @@ class SequenceFilter:
     def frames(self) -> int:
         return len(self._times)
 
+    @property
+    def full(self) -> bool:
+        """The window holds ``length`` frames, or (following the distance travelled) spans ``reach`` metres."""
+        if len(self._times) >= self.length:
+            return True
+        return (self.route is not None and self.reach is not None and len(self._progress) > 1
+                and abs(self._progress[-1] - self._progress[0]) >= self.reach)
+
     def _lookup(self, times: np.ndarray, where: np.ndarray) -> np.ndarray:
         """cost_t at positions ``where`` of frames ``times`` (broadcast together): the lowest cost within
         ``radius``; the penalty off the map or where a frame has no cost."""
         n = self.costs.n_refs
         times = np.broadcast_to(times, where.shape)
-        nearest = np.rint(where).astype(np.int64)
+        nearest = np.rint(np.where(np.isfinite(where), where, -1.0 - self.radius - n)).astype(np.int64)
         best = np.full(where.shape, np.inf)
         for offset in range(-self.radius, self.radius + 1):
             cells = nearest + offset
@@ -133,25 +153,31 @@ class SequenceFilter:
         return np.where(np.isfinite(best), best, self.penalty)
 
     def update(self, scores: Any, candidates: np.ndarray, seeds: np.ndarray | None = None,
-               speeds: np.ndarray | None = None) -> SequenceResult:
+               speeds: np.ndarray | None = None, progress: float | None = None) -> SequenceResult:
         """Add the newest frame: its scores (what :attr:`costs` takes; None for a frame without), its
         candidates (each anchors trajectories) and its seeds (map frames around which its lowest costs are
-        looked for, besides where the live trajectories pass).
+        looked for, besides where the live trajectories pass); ``progress``: its metres along its camera's
+        axis, following the distance travelled (a ``route`` was given).
 
         ``speeds`` optionally restricts the speeds of the trajectories this frame spawns
         (a tracker's plausible range); older trajectories keep theirs.
         """
         self._t += 1
         t = self._t
+        if self.route is not None and progress is None:
+            raise ValueError("a sequence filter following the distance travelled needs each frame's progress")
         self.costs.add(t, scores)
         self._times.append(t)
+        self._progress.append(float(t) if self.route is None else float(progress))  # type: ignore[arg-type]
         if len(self._times) > self.length:
             self._times.popleft()
+            self._progress.popleft()
         oldest = self._times[0]
 
         # Slide the window: drop trajectories anchored before it, shift the cost columns left.
         live = self._anchor_t >= oldest
         self._anchor_t, self._anchor_r, self._speed = self._anchor_t[live], self._anchor_r[live], self._speed[live]
+        self._anchor_q = self._anchor_q[live]
         self._costs = np.concatenate([self._costs[live, 1:], np.full((int(live.sum()), 1), np.nan)], axis=1)
         if len(self._anchor_t):
             # The newest frame's cost on every live trajectory.
@@ -163,12 +189,13 @@ class SequenceFilter:
         new_r = np.repeat(anchors, len(spawn))
         new_v = np.tile(spawn, len(anchors))
         new_costs = np.full((len(new_r), self.length), np.nan)
+        q = self._progress[-1]
         if len(new_r):
             times = np.asarray(self._times)
-            new_costs[:, self.length - len(times) :] = self._lookup(
-                times[None, :], new_r[:, None] + new_v[:, None] * (times[None, :] - t)
-            )
+            along = self._at_route(self._on_route(new_r)[:, None] + new_v[:, None] * (np.asarray(self._progress) - q))
+            new_costs[:, self.length - len(times) :] = self._lookup(times[None, :], along)
         self._anchor_t = np.concatenate([self._anchor_t, np.full(len(new_r), t)])
+        self._anchor_q = np.concatenate([self._anchor_q, np.full(len(new_r), q)])
         self._anchor_r = np.concatenate([self._anchor_r, new_r])
         self._speed = np.concatenate([self._speed, new_v])
         self._costs = np.concatenate([self._costs, new_costs])
@@ -181,7 +208,8 @@ class SequenceFilter:
         chosen = np.unique(np.asarray(candidates, dtype=np.int64))
         if self.anchors == 0:
             return chosen.astype(np.float64)
-        passing = np.rint(self.positions()).astype(np.int64)[:, None] + np.arange(-self.radius, self.radius + 1)
+        ends = self.positions()
+        passing = np.rint(ends[np.isfinite(ends)]).astype(np.int64)[:, None] + np.arange(-self.radius, self.radius + 1)
         seeds = np.asarray(seeds if seeds is not None else [], dtype=np.int64)
         around = seeds[:, None] + np.arange(-self.neighbourhood, self.neighbourhood + 1)
         near = np.concatenate([passing.ravel(), chosen, around.ravel()])
@@ -191,40 +219,71 @@ class SequenceFilter:
         """Drop the live trajectories whose reference index runs against ``sign`` (+1 rising, -1 falling):
         once the direction of travel is known they are no longer plausible."""
         keep = self._speed * sign >= 0
-        self._anchor_t, self._anchor_r = self._anchor_t[keep], self._anchor_r[keep]
+        self._anchor_t, self._anchor_r, self._anchor_q = self._anchor_t[keep], self._anchor_r[keep], self._anchor_q[keep]
         self._speed, self._costs = self._speed[keep], self._costs[keep]
 
     def scores(self) -> np.ndarray:
-        """Mean cost of every live trajectory over the frames in the window."""
+        """Mean cost of every live trajectory over the frames in the window (following the distance travelled:
+        those within ``reach`` metres of the newest)."""
         window = self._costs[:, self.length - len(self._times) :]
+        if self.route is not None and self.reach is not None:
+            progress = np.asarray(self._progress)
+            window = window[:, np.abs(progress[-1] - progress) <= self.reach + 1e-9]
         return window.sum(axis=1) / window.shape[1]
 
     def positions(self) -> np.ndarray:
-        """Position of every live trajectory at the newest frame."""
-        return self._anchor_r + self._speed * (self._t - self._anchor_t)
+        """Position of every live trajectory at the newest frame (a reference index, fractional; NaN off the map
+        where the distance travelled is followed)."""
+        if self.route is None:
+            return self._anchor_r + self._speed * (self._t - self._anchor_t)
+        return self._at_route(self._on_route(self._anchor_r) + self._speed * (self._progress[-1] - self._anchor_q))
+
+    def _on_route(self, refs: np.ndarray) -> np.ndarray:
+        """The route position of reference positions (the index itself where trajectories are straight in frames)."""
+        if self.route is None:
+            return refs
+        return np.interp(refs, np.arange(len(self.route)), self.route)
+
+    def _at_route(self, along: np.ndarray) -> np.ndarray:
+        """The reference position (fractional index) at route positions ``along``; NaN beyond the map's ends."""
+        if self.route is None:
+            return along
+        inside = (along >= self.route[0] - 1e-9) & (along <= self.route[-1] + 1e-9)
+        return np.where(inside, np.interp(along, self.route, np.arange(len(self.route))), np.nan)
 
     def _best(self) -> SequenceResult:
         scores = self.scores()
         if len(scores) == 0:
             return SequenceResult(np.nan, np.nan, np.inf, len(self._times), np.full(len(self._times), np.nan))
         ends = self.positions()
-        # Lowest score; ties go to the slower trajectory, then the lower position, then the newer anchor,
-        # then a rising reference index.
+        # Lowest score among the trajectories still on the map; ties go to the slower trajectory, then the lower
+        # position, then the newer anchor, then a rising reference index.
+        scores = np.where(np.isfinite(ends), scores, np.inf)
+        if not np.isfinite(scores).any():
+            return SequenceResult(np.nan, np.nan, np.inf, len(self._times), np.full(len(self._times), np.nan))
         tied = np.flatnonzero(scores == scores.min())
         speed = self._speed[tied]
         best = tied[np.lexsort((-speed, -self._anchor_t[tied], ends[tied], np.abs(speed)))[0]]
-        times = np.asarray(self._times)
+        if self.route is None:
+            times = np.asarray(self._times)
+            trajectory = self._anchor_r[best] + self._speed[best] * (times - self._anchor_t[best])
+            rate = float(self._speed[best])
+        else:
+            trajectory = self._at_route(self._on_route(self._anchor_r[best : best + 1])
+                                        + self._speed[best] * (np.asarray(self._progress) - self._anchor_q[best]))
+            rate = float(trajectory[-1] - trajectory[-2]) if len(trajectory) > 1 else 0.0
         return SequenceResult(
             position=float(ends[best]),
-            speed=float(self._speed[best]),
+            speed=rate,
             score=float(scores[best]),
             frames=len(self._times),
-            trajectory=self._anchor_r[best] + self._speed[best] * (times - self._anchor_t[best]),
+            trajectory=trajectory,
         )
 
     def runner_up(self, position: float, exclusion: float) -> float:
         """Best score among trajectories ending more than ``exclusion`` reference frames from ``position``."""
-        far = np.abs(self.positions() - position) > exclusion
+        with np.errstate(invalid="ignore"):
+            far = np.abs(self.positions() - position) > exclusion
         return float(self.scores()[far].min()) if far.any() else np.inf
 
     def window(self, width: int) -> tuple[np.ndarray, np.ndarray]:

@@ -10,7 +10,8 @@ from typing import TYPE_CHECKING, Any
 from lostx import __version__
 from lostx.evaluation.catalogue import METHODS, MODES
 from lostx.options import (
-    add_config_options, add_source_options, config_from_args, number, print_notes, source_options_from_args,
+    CAMERA_FILE_HELP, add_config_options, add_source_options, config_from_args, number, print_notes,
+    source_options_from_args,
 )
 from lostx.replay.formats import FORMATS
 
@@ -41,6 +42,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                         help="flip the query images left-right (a test of the flip handling, not an opposite view)")
     parser.add_argument("--reference-positions", type=Path, help="positions CSV of the reference images")
     parser.add_argument("--query-positions", type=Path, help="positions CSV of the query images")
+    parser.add_argument("--reference-camera-file", type=Path, metavar="PATH",
+                        help=f"reference: {CAMERA_FILE_HELP}")
+    parser.add_argument("--query-camera-file", type=Path, metavar="PATH", help=f"query: {CAMERA_FILE_HELP}")
     parser.add_argument("--spacing", type=number(0, above=True), metavar="METRES",
                         help="keep one frame every SPACING metres travelled (the paper: 2)")
     parser.add_argument("--tolerances", type=number(0), nargs="+",
@@ -50,7 +54,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("--modes", nargs="+", choices=list(MODES), default=list(MODES))
     parser.add_argument("--cache", type=Path, help="cache of network outputs (default: REPORT_DIR/cache)")
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
-    add_source_options(parser, format=False, reverse=True)
+    add_source_options(parser, format=False, reverse=True, camera_file=False)
     add_config_options(parser)
     parser.set_defaults(run=run)
 
@@ -82,6 +86,7 @@ def run(args: argparse.Namespace) -> int:
         mirror_query=args.mirror_query, spacing=args.spacing,
         options=source_options_from_args(args), reverse_query=args.reverse,
     )
+    pair = with_camera_files(pair, args.reference_camera_file, args.query_camera_file)
     print_notes(pair.notes)
     runs, truths = evaluate_pair(pair, config, cache, args.methods, args.modes, args.tolerances, args.unit,
                                  progress=not args.quiet, true_heading="opposite" if args.opposite else "same")
@@ -111,6 +116,19 @@ def run(args: argparse.Namespace) -> int:
     print(markdown_table(entries))
     print(f"wrote {args.out / 'report.md'}, report.json and {len(figures)} figures")
     return 0
+
+
+def with_camera_files(pair: DatasetPair, reference: Path | None, query: Path | None) -> DatasetPair:
+    """The pair with the camera files given for either side in place of its own geometry."""
+    from dataclasses import replace
+
+    from lostx.replay.calibration import with_camera_file
+
+    if reference is not None:
+        pair = replace(pair, reference=with_camera_file(pair.reference, reference))
+    if query is not None:
+        pair = replace(pair, query=with_camera_file(pair.query, query))
+    return pair
 
 
 def report_settings(args: argparse.Namespace, config: Config, pair: DatasetPair,

@@ -56,8 +56,9 @@ def run_build(args: argparse.Namespace) -> int:
     from lostx.core.backbones import load_backbone
     from lostx.core.build import build_map
     from lostx.core.describe.describer import LostDescriber
-    from lostx.core.outputs import check_output_folder
     from lostx.core.describe.thumbnail import ThumbnailDescriber
+    from lostx.core.maps.refmap import ReferenceMap
+    from lostx.core.outputs import check_output_folder
     from lostx.replay.dataset import open_traverse
 
     config = config_from_args(args)
@@ -84,7 +85,20 @@ def run_build(args: argparse.Namespace) -> int:
         f"built {summary.path}: {summary.n_frames} frames ({args.descriptor}) in {summary.seconds:.1f} s, "
         f"{summary.bytes / 1e6:.2f} MB ({summary.bytes_per_frame / 1e3:.1f} kB per frame)"
     )
+    if args.descriptor == "lost":
+        print(_layout_line(ReferenceMap.open(summary.path), traverse))
     return 0
+
+
+def _layout_line(refmap, traverse) -> str:  # noqa: ANN001 (ReferenceMap, Traverse: imported lazily)
+    """What the map knows of its places' layout, and why not where it has none."""
+    if refmap.layout_settings is not None:
+        motion = "odometry" if traverse.odometry is not None else "visual odometry"
+        return f"layout     on: a grid of {refmap.layout_settings.cell:g} m cells per frame, motion from {motion}"
+    if traverse.geometry is None:
+        return ("layout     off: the frames carry no camera geometry (put a camera.toml beside them or give "
+                "--camera-file; see docs/datasets.md), so a view from the other end is matched by LoST-X alone")
+    return "layout     off (switched off, or the model has no road class)"
 
 
 def run_info(args: argparse.Namespace) -> int:

@@ -121,7 +121,13 @@ def _run_camera(args: argparse.Namespace, index: int, camera: str | None, encodi
     if misplaced:
         raise InputError(f"camera:{index} is a live camera; {', '.join(misplaced)} "
                          f"{'is' if len(misplaced) == 1 else 'are'} for recordings only")
-    with LiveCamera(index, camera) as live, _publisher(args, encoding, live.name) as publisher:  # type: ignore[arg-type]
+    geometry = None
+    if args.camera_file is not None:
+        from lostx.core.geometry import read_camera_file
+
+        geometry = read_camera_file(args.camera_file)
+    with LiveCamera(index, camera, geometry=geometry) as live, \
+            _publisher(args, encoding, live.name) as publisher:  # type: ignore[arg-type]
         if not args.quiet:
             print(f"streaming {live.name} to {args.to} as stream {publisher.stream} ({encoding}, newest frame "
                   f"first); waiting for the service... (Ctrl-C to stop)", file=sys.stderr)

@@ -1,0 +1,160 @@
+"""Every variant of the layout measured on the nuScenes front/rear frames, and which choices carry from one
+setup to the other (docs/opposite-view.md).
+
+S1: map from the rear camera, queries from the front one; S2: map from the front camera, queries the rear
+frames played backwards. The heading is not declared (the frames' camera is removed). Recall@1 at 7.5 m of the
+look-at points, counts of the queries that have a counterpart; single frame and with the sequence filter.
+For each family of variants the choice made on S1 is reported on S2 and the other way round.
+
+    python benchmarks/study_layout.py [--families weight,window,...] [--out benchmarks/results/study_layout.json]
+"""
+
+from __future__ import annotations
+
+import common  # noqa: F401  (first: it limits numpy's BLAS threads before numpy loads)
+
+import argparse
+import dataclasses
+import json
+import tempfile
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from common import RESULTS, print_table, write_json
+from lostx.core import Config, Localizer, LostDescriber, ReferenceMap, build_map, load_backbone
+from lostx.core.match.matcher import PlaceMatcher
+from lostx.core.paths import data_dir
+from lostx.replay.dataset import SourceOptions, open_traverse
+
+SCENE = data_dir() / "nuscenes-frontrear" / "scene-0523"
+SETUPS = {"S1": ("rear", "front", False), "S2": ("front", "rear", True)}
+TOLERANCE = 7.5
+
+
+def variant(**sections: dict) -> Config:
+    config = Config()
+    for name, values in sections.items():
+        config = dataclasses.replace(config, **{name: dataclasses.replace(getattr(config, name), **values)})
+    return config
+
+
+FAMILIES: dict[str, dict[str, Config]] = {
+    "cues": {
+        "LoST-X alone": variant(layout=dict(enabled="off")),
+        "layout weight 1": variant(layout=dict(weight=1.0)),
+        "layout weight 2": variant(layout=dict(weight=2.0)),
+        "layout weight 3 (default)": Config(),
+        "layout weight 4": variant(layout=dict(weight=4.0)),
+        "the layout alone": variant(layout=dict(weight=100.0)),
+    },
+    "window": {f"distance window {d:g} m": variant(sequence=dict(distance_window=d)) for d in (30.0, 45.0, 60.0, 1000.0)},
+    "follow": {
+        "sequence straight in frames": variant(sequence=dict(follow="frames")),
+        "sequence following the distance (default)": Config(),
+    },
+    "grid": {
+        "cells 2 m (default)": Config(),
+        "cells 1 m": variant(layout=dict(cell=1.0, blur=1.0, across_shift=3.0)),
+        "range 30 m": variant(layout=dict(max_range=30.0)),
+        "range 40 m": variant(layout=dict(max_range=40.0)),
+    },
+    "gathering": {
+        "one frame each": variant(layout=dict(query_travel=0.0, map_travel=0.0)),
+        "query 12 m, map +-9 m": variant(layout=dict(query_travel=12.0, map_travel=9.0)),
+        "query 24 m, map +-18 m (default)": Config(),
+        "query 36 m, map +-27 m": variant(layout=dict(query_travel=36.0, map_travel=27.0)),
+    },
+    "comparison": {
+        "sideways shift +-2 m (default)": Config(),
+        "no sideways shift": variant(layout=dict(across_shift=0.0)),
+        "vehicles weighted 1": variant(layout=dict(vehicle_weight=1.0)),
+        "vehicles left out": variant(layout=dict(vehicle_weight=0.0)),
+        "turns of +-10, +-20 degrees": variant(layout=dict(turns=(-20.0, -10.0, 0.0, 10.0, 20.0))),
+    },
+    "motion": {
+        "ego poses (default source)": Config(),
+        "visual odometry": variant(motion=dict(source="visual")),
+    },
+}
+
+
+class Study:
+    def __init__(self, root: Path) -> None:
+        self.root = root
+        self.backbone = load_backbone()
+        self._maps: dict[str, ReferenceMap] = {}
+
+    def refmap(self, camera: str, config: Config) -> ReferenceMap:
+        key = json.dumps([camera, dataclasses.asdict(config.layout), dataclasses.asdict(config.motion)], default=str)
+        if key not in self._maps:
+            path = self.root / f"map-{len(self._maps)}"
+            build_map(open_traverse(SCENE / camera), path, config, LostDescriber(self.backbone, config.lost),
+                      progress=False)
+            self._maps[key] = ReferenceMap.open(path)
+        return self._maps[key]
+
+    def run(self, config: Config) -> dict[str, dict[str, list[int]]]:
+        out = {}
+        for setup, (map_camera, query_camera, reverse) in SETUPS.items():
+            refmap = self.refmap(map_camera, config)
+            queries = open_traverse(SCENE / query_camera)
+            if reverse:
+                queries = queries.reversed()
+            looks = open_traverse(SCENE / query_camera, options=SourceOptions(look_at=15.0)).positions[queries.rows]
+            map_looks = open_traverse(SCENE / map_camera, options=SourceOptions(look_at=15.0)).positions
+            frames = [dataclasses.replace(f, camera=None) for f in queries]
+            matcher = PlaceMatcher(refmap, config, self.backbone)
+            matches = [matcher.match_description(matcher.describe(f)) for f in frames]
+            result: dict[str, list[int]] = {}
+            for mode in ("single", "sequence"):
+                run_config = dataclasses.replace(config, sequence=dataclasses.replace(config.sequence,
+                                                                                      enabled=mode == "sequence"))
+                localizer = Localizer(refmap, run_config, self.backbone)
+                right = counted = 0
+                heading = 0
+                for k, (frame, match) in enumerate(zip(frames, matches)):
+                    estimate = localizer.update(frame, match)
+                    heading += estimate.heading == "opposite"
+                    distance = np.hypot(*(map_looks - looks[k]).T)
+                    if distance.min() <= TOLERANCE:
+                        counted += 1
+                        right += bool(distance[estimate.match_index] <= TOLERANCE)
+                result[mode] = [right, counted]
+                result[f"heading_{mode}"] = [heading, len(frames)]
+            out[setup] = result
+        return out
+
+
+def chosen(results: dict[str, dict], on: str) -> str:
+    """The variant with the best sequence Recall@1 on setup ``on`` (ties: single frame, then the listed order)."""
+    return max(results, key=lambda name: (results[name][on]["sequence"][0], results[name][on]["single"][0]))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--families", default=",".join(FAMILIES), help="comma-separated: " + ", ".join(FAMILIES))
+    parser.add_argument("--out", type=Path, default=RESULTS / "study_layout.json")
+    args = parser.parse_args()
+    warnings.simplefilter("ignore")
+    report: dict[str, dict] = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        study = Study(Path(tmp))
+        for family in args.families.split(","):
+            results = {name: study.run(config) for name, config in FAMILIES[family].items()}
+            rows = []
+            for name, r in results.items():
+                rows.append([name, *(f"{r[s][m][0]}/{r[s][m][1]}" for s in SETUPS for m in ("single", "sequence")),
+                             f"{r['S1']['heading_sequence'][0]}/{r['S2']['heading_sequence'][0]}"])
+            print_table(f"{family}: Recall@1 at 7.5 m (heading opposite in frames of 40)",
+                        ["variant", "S1 single", "S1 sequence", "S2 single", "S2 sequence", "heading S1/S2"], rows)
+            on_s1, on_s2 = chosen(results, "S1"), chosen(results, "S2")
+            print(f"chosen on S1: {on_s1} -> S2 sequence {results[on_s1]['S2']['sequence']}; "
+                  f"chosen on S2: {on_s2} -> S1 sequence {results[on_s2]['S1']['sequence']}")
+            report[family] = {"results": results, "chosen_on_S1": on_s1, "chosen_on_S2": on_s2}
+    write_json(args.out, {"benchmark": "study_layout", "tolerance_m": TOLERANCE, "families": report})
+
+
+if __name__ == "__main__":
+    main()

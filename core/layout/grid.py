@@ -1,0 +1,128 @@
+"""The layout grid: a window of frames' road-plane evidence, brought into one camera's ground frame with the
+motion between them, on a grid around the stretch of road the camera looks at.
+
+The grid lies in the camera's ground frame: ``length`` metres along its level axis centred ``centre`` metres
+ahead, ``width`` metres across, cells of ``cell`` metres; row 0 nearest the camera, column 0 on its left.
+Turned 180 degrees about its centre it is the same stretch seen from its other end.
+
+Channels (:data:`.classes.CHANNELS`): the share of the rays landing in a cell that show road, and that
+show other ground (a share, not a count: the number of rays per cell follows each camera's field of view
+and pixel density, not the place); then, per kind of thing standing on the ground, log(1 + metres of it
+touching the ground in the cell). A cell no ray reached is unobserved (the mask), and comparisons use only
+the cells both grids observed. Values are smoothed with a Gaussian normalised by the mask.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import cv2
+import numpy as np
+
+from ..config import LayoutConfig
+from ..motion.pose import relative, transform_points
+from .classes import CHANNELS, CONTACTS, GROUND, ROAD
+from .projection import FramePoints
+
+CONTACT_RANGE = 4.0
+"""log(1 + metres) of contact stored up to this (55 m of ground front in one cell)."""
+
+
+@dataclass(frozen=True)
+class LayoutGrid:
+    """One place's layout: (C, A, X) channel values and the (A, X) cells observed."""
+
+    values: np.ndarray
+    mask: np.ndarray
+
+    @property
+    def observed(self) -> int:
+        return int(self.mask.sum())
+
+    def rotated(self, degrees: float) -> "LayoutGrid":
+        """The grid turned by ``degrees`` (anticlockwise seen from above) about its centre; cells brought in from
+        outside are unobserved."""
+        if degrees == 0:
+            return self
+        rows, cols = self.mask.shape
+        # Row index grows along the camera's axis, column index to its right: anticlockwise from above is
+        # clockwise in these (row, column) coordinates.
+        matrix = cv2.getRotationMatrix2D(((cols - 1) / 2.0, (rows - 1) / 2.0), -degrees, 1.0)
+        warp = dict(flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
+        mask = cv2.warpAffine(self.mask.astype(np.float32), matrix, (cols, rows), **warp) > 0.99
+        values = np.stack([cv2.warpAffine(v, matrix, (cols, rows), **warp) for v in self.values])
+        return LayoutGrid(np.where(mask, values, 0.0).astype(np.float32), mask)
+
+    def turned(self) -> "LayoutGrid":
+        """The grid seen from the other end of the stretch: rotated 180 degrees about its centre."""
+        return LayoutGrid(np.ascontiguousarray(self.values[:, ::-1, ::-1]), np.ascontiguousarray(self.mask[::-1, ::-1]))
+
+
+def grid_shape(config: LayoutConfig) -> tuple[int, int]:
+    """(A, X): cells along and across."""
+    return int(round(config.length / config.cell)), int(round(config.width / config.cell))
+
+
+def accumulate(frames: Sequence[FramePoints], poses: np.ndarray, current: np.ndarray,
+               config: LayoutConfig) -> LayoutGrid:
+    """The layout grid of the camera at pose ``current`` from ``frames`` taken at ``poses`` ((k, 3) camera
+    ground poses in one odometry frame; ``current`` is one of them for a live frame)."""
+    rows, cols = grid_shape(config)
+    cells = rows * cols
+    rays = np.zeros(3 * cells)
+    contact = np.zeros(len(CONTACTS) * cells)
+    near = config.centre - config.length / 2.0
+    for points, pose in zip(frames, np.asarray(poses, dtype=np.float64).reshape(-1, 3)):
+        here = relative(current, pose)
+        for xy, kind, weight, target, kinds in (
+            (points.rays, points.ray_kind, points.ray_weight, rays, 3),
+            (points.contacts, points.contact_kind, points.contact_weight, contact, len(CONTACTS)),
+        ):
+            if not len(xy):
+                continue
+            moved = transform_points(here, xy.astype(np.float64))
+            a = np.floor((moved[:, 0] - near) / config.cell).astype(np.int64)
+            x = np.floor((config.width / 2.0 - moved[:, 1]) / config.cell).astype(np.int64)
+            inside = (a >= 0) & (a < rows) & (x >= 0) & (x < cols)
+            index = (kind[inside].astype(np.int64) * rows + a[inside]) * cols + x[inside]
+            target += np.bincount(index, weight[inside], kinds * cells)
+    rays = rays.reshape(3, rows, cols)
+    contact = contact.reshape(len(CONTACTS), rows, cols)
+    landed = rays.sum(axis=0)
+    mask = landed > 0
+    values = np.empty((len(CHANNELS), rows, cols), dtype=np.float32)
+    values[0] = rays[ROAD] / np.maximum(landed, 1e-9)
+    values[1] = rays[GROUND] / np.maximum(landed, 1e-9)
+    values[2:] = np.minimum(np.log1p(contact), CONTACT_RANGE)
+    values[:, ~mask] = 0.0
+    return LayoutGrid(_smoothed(values, mask, config.blur / config.cell), mask)
+
+
+def _smoothed(values: np.ndarray, mask: np.ndarray, sigma: float) -> np.ndarray:
+    """Gaussian smoothing normalised by the mask: unobserved cells neither count nor receive a value."""
+    if sigma <= 0 or not mask.any():
+        return values
+    weight = cv2.GaussianBlur(mask.astype(np.float32), (0, 0), sigma, borderType=cv2.BORDER_CONSTANT)
+    out = np.empty_like(values)
+    for c in range(len(values)):
+        blurred = cv2.GaussianBlur(values[c] * mask, (0, 0), sigma, borderType=cv2.BORDER_CONSTANT)
+        out[c] = np.where(mask, blurred / np.maximum(weight, 1e-6), 0.0)
+    return out
+
+
+# Stored in a map: one byte per value (shares over 255 steps, contacts over CONTACT_RANGE), the mask as bits.
+_SCALE = np.array([255.0, 255.0] + [255.0 / CONTACT_RANGE] * len(CONTACTS), dtype=np.float32)[:, None, None]
+
+
+def pack(grid: LayoutGrid) -> tuple[np.ndarray, np.ndarray]:
+    """(C*A*X,) uint8 values and (ceil(A*X / 8),) uint8 mask bits, as a map stores a grid."""
+    values = np.clip(np.rint(grid.values * _SCALE), 0, 255).astype(np.uint8)
+    return values.ravel(), np.packbits(grid.mask.ravel())
+
+
+def unpack(values: np.ndarray, bits: np.ndarray, shape: tuple[int, int]) -> LayoutGrid:
+    rows, cols = shape
+    grid = np.asarray(values, dtype=np.float32).reshape(len(CHANNELS), rows, cols) / _SCALE
+    mask = np.unpackbits(np.asarray(bits, dtype=np.uint8))[: rows * cols].reshape(rows, cols).astype(bool)
+    return LayoutGrid(grid, mask)

@@ -1,0 +1,140 @@
+"""LoST-X and the layout together: each cue's score of any map frame standardised over the map, then added.
+
+    s(r) = (x_L(r) - mean x_L) / std x_L  -  w (y(r) - mean y) / std y
+
+x_L is LoST-X's single-frame score (lower is better: the verification score of the verified candidates, the
+descriptor distance times their median factor elsewhere, :class:`MapScores`), y the layout's similarity
+(higher is better, :mod:`lostx.core.layout.compare`) under the same heading, w ``layout.weight``. The means and
+standard deviations are a frame's own over the map (every map frame where the map is small enough to compare
+them all, else an even sample of it), so that neither cue's scale decides: what each says is how far a map
+frame stands out from the rest of the map. Lower is better, like every single-frame score.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..layout.compare import GridStack, similarity
+from ..layout.grid import LayoutGrid
+from .scores import MapScores
+
+EVERY_FRAME_MAX = 20000
+"""Maps up to this many frames compare the layout with every map frame; larger ones where they are asked."""
+SAMPLE = 512
+"""Map frames (evenly spaced) whose scores give a larger map's means and standard deviations."""
+REFINE = 64
+"""The map frames most similar to a query as the grids lie that are compared again shifted sideways."""
+
+
+@dataclass
+class LayoutScores:
+    """One frame's layout similarity with any map frame, computed when asked (higher is better)."""
+
+    query: LayoutGrid
+    """The frame's grid under one heading (turned 180 degrees for ``opposite``)."""
+    maps: GridStack
+    weights: np.ndarray
+    shifts: int
+    min_cells: int
+    turns: tuple[float, ...] = (0.0,)
+    _every: np.ndarray | None = field(default=None, repr=False)
+
+    @property
+    def n_frames(self) -> int:
+        return self.maps.n
+
+    def every(self) -> np.ndarray:
+        if self._every is None:
+            self._every = self._compare(self.maps)
+        return self._every
+
+    def at(self, refs: np.ndarray) -> np.ndarray:
+        refs = np.asarray(refs, dtype=np.int64)
+        if self._every is not None or self.maps.n <= EVERY_FRAME_MAX:
+            return self.every()[refs]
+        return self._compare(self.maps.rows(refs))
+
+    def _compare(self, maps: GridStack) -> np.ndarray:
+        """Best over the query's turns and sideways shifts: every map grid as it lies, then the ``REFINE`` most
+        similar also shifted (a shift only ever finds a better fit, and only the best ones matter)."""
+        def compare(stack: GridStack, shifts: int) -> np.ndarray:
+            return np.max([similarity(self.query.rotated(angle), stack, self.weights, shifts, self.min_cells)
+                           for angle in self.turns], axis=0)
+
+        scores = compare(maps, 0)
+        if self.shifts and maps.n:
+            best = np.argsort(-np.where(np.isfinite(scores), scores, -np.inf), kind="stable")[:REFINE]
+            scores[best] = np.maximum(scores[best], compare(maps.rows(best), self.shifts))
+        return scores
+
+
+def _moments(values: np.ndarray) -> tuple[float, float]:
+    finite = values[np.isfinite(values)]
+    if len(finite) < 2:
+        return 0.0, 1.0
+    return float(finite.mean()), float(max(finite.std(), 1e-9))
+
+
+@dataclass
+class CombinedScores:
+    """The combined score of any map frame (see the module docstring); a :class:`MapScores` in use."""
+
+    lost: MapScores
+    layout: LayoutScores
+    weight: float
+    removed: slice | None = None
+    removed_score: float = np.nan
+
+    def __post_init__(self) -> None:
+        n = self.lost.n_frames
+        sample = np.arange(n) if n <= EVERY_FRAME_MAX else np.linspace(0, n - 1, SAMPLE).astype(np.int64)
+        keep = np.ones(len(sample), dtype=bool)
+        if self.lost.removed is not None:
+            keep = (sample < self.lost.removed.start) | (sample >= self.lost.removed.stop)
+        sample = sample[keep]
+        self._lost_moments = _moments(self.lost.at(sample))
+        layout = self.layout.at(sample)
+        self._layout_moments = _moments(layout)
+        self._floor = float(np.min(layout[np.isfinite(layout)])) if np.isfinite(layout).any() else 0.0
+
+    @property
+    def n_frames(self) -> int:
+        return self.lost.n_frames
+
+    @property
+    def known(self) -> np.ndarray:
+        return self.lost.known
+
+    def _combine(self, lost: np.ndarray, layout: np.ndarray) -> np.ndarray:
+        (lm, ls), (ym, ys) = self._lost_moments, self._layout_moments
+        # A map frame the layout cannot be compared with (too few cells seen by both) counts as the least similar.
+        layout = np.where(np.isfinite(layout), layout, self._floor)
+        return (lost - lm) / ls - self.weight * (layout - ym) / ys
+
+    def every(self) -> np.ndarray:
+        return self._removed(np.arange(self.n_frames), self._combine(self.lost.every(), self.layout.every()))
+
+    def at(self, refs: np.ndarray) -> np.ndarray:
+        refs = np.asarray(refs, dtype=np.int64)
+        return self._removed(refs, self._combine(self.lost.at(refs), self.layout.at(refs)))
+
+    def _removed(self, refs: np.ndarray, out: np.ndarray) -> np.ndarray:
+        if self.removed is not None:
+            out[(refs >= self.removed.start) & (refs < self.removed.stop)] = self.removed_score
+        return out
+
+
+def layout_vote(same: LayoutScores, opposite: LayoutScores) -> float:
+    """The layout's vote on the heading (> 0 favours opposite): which heading's best map frame stands further
+    above that heading's other map frames, in standard deviations. Each heading's similarities are judged
+    against their own spread, since comparing grids as they are and turned differs for every pair of
+    frames, not only the true one (both cameras see road straight ahead)."""
+    def lead(scores: LayoutScores) -> float:
+        values = scores.every() if scores.n_frames <= EVERY_FRAME_MAX else scores.at(
+            np.linspace(0, scores.n_frames - 1, SAMPLE).astype(np.int64))
+        finite = values[np.isfinite(values)]
+        return float((finite.max() - finite.mean()) / max(finite.std(), 1e-9)) if len(finite) > 1 else 0.0
+
+    return float(np.sign(lead(opposite) - lead(same)))

@@ -1,0 +1,193 @@
+"""The layout: where road, ground and what stands on it lie around the road, from one calibrated camera and
+its motion, compared as it is and turned 180 degrees."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from lostx.core.config import Config, LayoutConfig
+from lostx.core.layout.classes import CHANNELS, OBJECT, ROAD, LayoutClasses
+from lostx.core.layout.compare import GridStack, similarity
+from lostx.core.layout.describer import FramePlacer, LiveLayout, Placed, map_grid, spread
+from lostx.core.layout.grid import LayoutGrid, accumulate, grid_shape, pack, unpack
+from lostx.core.layout.projection import FramePoints
+from lostx.core.match.costs import EveryFrameCosts
+from lostx.core.match.matcher import PlaceMatcher
+from lostx.core.match.scores import MapScores
+from lostx.core.motion.pose import compose, inverse, relative
+from lostx.core.paths import data_dir
+from lostx.core.route.sequence import SequenceFilter, signed
+from lostx.replay.dataset import open_traverse
+
+SCENE = data_dir() / "nuscenes-frontrear" / "scene-0523"
+WEIGHTS = np.array([1, 1, 1, 1, 0.5, 1.0])
+
+
+def _grid(rng: np.random.Generator, shape=(20, 15), seen: float = 0.8) -> LayoutGrid:
+    mask = rng.random(shape) < seen
+    values = rng.random((len(CHANNELS), *shape)).astype(np.float32) * mask
+    return LayoutGrid(values, mask)
+
+
+def test_a_grid_is_most_like_itself_and_a_turned_grid_like_its_turn(rng):
+    grids = [_grid(rng) for _ in range(5)]
+    stack = GridStack.of(grids)
+    scores = similarity(grids[2], stack, WEIGHTS)
+    assert scores[2] == pytest.approx(1.0) and np.all(scores[[0, 1, 3, 4]] < 0.5)
+    turned = GridStack.of([g.turned() for g in grids])
+    assert similarity(grids[2].turned(), turned, WEIGHTS)[2] == pytest.approx(1.0)
+    assert np.array_equal(grids[2].turned().turned().values, grids[2].values)
+
+
+def test_a_sideways_shift_within_reach_is_found(rng):
+    grid = _grid(rng, seen=1.0)
+    moved = LayoutGrid(np.roll(grid.values, 1, axis=2), np.roll(grid.mask, 1, axis=1))
+    stack = GridStack.of([moved])
+    assert similarity(grid, stack, WEIGHTS, shifts=0)[0] < 0.5
+    assert similarity(grid, stack, WEIGHTS, shifts=1)[0] == pytest.approx(1.0)
+
+
+def test_too_few_cells_in_common_give_no_similarity(rng):
+    grid = _grid(rng, seen=1.0)
+    sparse = LayoutGrid(grid.values, np.zeros_like(grid.mask))
+    sparse.mask[0, :10] = True
+    assert similarity(grid, GridStack.of([sparse]), WEIGHTS, min_cells=25)[0] == -np.inf
+    assert np.isfinite(similarity(grid, GridStack.of([sparse]), WEIGHTS, min_cells=5)[0])
+
+
+def test_a_map_keeps_a_grid_within_one_quantisation_step(rng):
+    grid = _grid(rng)
+    grid.values[2:] *= 3.0  # contacts in log(1 + metres)
+    values, bits = pack(grid)
+    assert values.dtype == np.uint8 and values.nbytes + bits.nbytes <= 4096
+    back = unpack(values, bits, grid.mask.shape)
+    assert np.array_equal(back.mask, grid.mask)
+    assert np.abs(back.values[:2] - grid.values[:2]).max() <= 0.5 / 255 + 1e-6
+    assert np.abs(back.values[2:] - grid.values[2:]).max() <= 0.5 * 4.0 / 255 + 1e-6
+
+
+def test_poses_compose_and_invert():
+    a, b = np.array([3.0, -1.0, 0.4]), np.array([1.0, 2.0, -1.2])
+    assert np.allclose(compose(a, inverse(a)), 0.0, atol=1e-12)
+    assert np.allclose(compose(a, relative(a, b)), b)
+    # Two metres forward after turning left a quarter: two metres to the left.
+    assert np.allclose(compose(np.array([0.0, 0.0, np.pi / 2]), np.array([2.0, 0.0, 0.0])), [0.0, 2.0, np.pi / 2])
+
+
+def _point(x: float, y: float, kind: int = ROAD) -> FramePoints:
+    z = np.zeros(0, np.float32)
+    return FramePoints(np.array([[x, y]], np.float32), np.array([kind], np.int8), np.array([1.0], np.float32),
+                       np.zeros((0, 2), np.float32), np.zeros(0, np.int8), z)
+
+
+def test_frames_are_gathered_where_the_motion_puts_them():
+    config = LayoutConfig(blur=0.0)
+    # A camera 4 m further on sees the same road point 4 m nearer; gathered, both land in one cell.
+    first, second = _point(20.0, 3.0), _point(16.0, 3.0, OBJECT)
+    poses = np.array([[0.0, 0.0, 0.0], [4.0, 0.0, 0.0]])
+    grid = accumulate([first, second], poses, poses[1], config)
+    assert grid.observed == 1
+    road = grid.values[CHANNELS.index("road")]
+    assert road[grid.mask][0] == pytest.approx(0.5)  # one ray of road, one of something standing there
+    rows, cols = grid_shape(config)
+    (a,), (x,) = np.nonzero(grid.mask)
+    assert (a, x) == (int((16.0 - (config.centre - config.length / 2)) // config.cell),
+                      int((config.width / 2 - 3.0) // config.cell))
+    # From the other end of the stretch (a camera 30 m on, looking back: the grids share their centre), the
+    # same point lies in the grid turned 180 degrees.
+    ahead = accumulate([first], poses[:1], np.array([0.0, 0.0, 0.0]), config)
+    back = accumulate([first], poses[:1], np.array([2 * config.centre, 0.0, np.pi]), config)
+    assert np.array_equal(back.mask, ahead.turned().mask) and back.observed == 1
+    assert rows == 20 and cols == 15
+
+
+def test_frames_are_chosen_evenly_over_the_distance():
+    travelled = np.arange(0.0, 60.0, 1.0)
+    chosen = spread(travelled, 10.0, 34.0, 5, keep=34)
+    assert len(chosen) <= 6 and 34 in chosen and chosen.min() >= 10 and chosen.max() <= 34
+    assert np.all(np.diff(travelled[chosen]) >= 4.0)
+    assert len(spread(travelled, 10.0, 13.0, 12, keep=13)) == 4
+
+
+@pytest.fixture(scope="module")
+def scene():
+    if not SCENE.is_dir():
+        pytest.fail(f"test data missing: {SCENE}")
+    return SCENE
+
+
+def _placed(traverse, mosaic, config: Config) -> list[Placed]:
+    classes = LayoutClasses.of_model(mosaic.info.class_names)
+    placer = FramePlacer(classes, config.layout, config.motion)
+    return [placer(frame, mosaic(frame.image).label_map) for frame in traverse]
+
+
+def test_the_same_stretch_from_its_two_ends_agrees_better_turned(scene, mosaic):
+    """Front frame i and rear frame i + 12 show one stretch of road from its two ends (the data's ground truth):
+    their grids agree better with one of them turned 180 degrees than as they are."""
+    config = Config()
+    front = _placed(open_traverse(scene / "front").subset(range(0, 20)), mosaic, config)
+    rear = _placed(open_traverse(scene / "rear").subset(range(8, 34)), mosaic, config)
+    live = LiveLayout(config.layout)
+    queries = [live.add(p) for p in front]
+    pairs = [(i, i + 12 - 8) for i in range(6, 20, 2)]
+    turned = as_is = 0
+    margins = []
+    for i, j in pairs:
+        ref = GridStack.of([map_grid(rear, j, config.layout)])
+        a, b = similarity(queries[i].turned(), ref, WEIGHTS, 1)[0], similarity(queries[i], ref, WEIGHTS, 1)[0]
+        turned += a > b
+        as_is += b > a
+        margins.append(a - b)
+    assert turned >= len(pairs) - 1, margins
+    assert np.mean(margins) > 0.1
+
+
+def test_a_map_of_frames_without_a_camera_has_no_layout_and_matches_as_before(day_map, robotcar, mosaic):
+    assert day_map.layout_settings is None and day_map.progress is None
+    on = PlaceMatcher(day_map, Config(), mosaic)
+    off = PlaceMatcher(day_map, dataclasses.replace(Config(), layout=LayoutConfig(enabled="off")), mosaic)
+    assert "no layout" in (on.layout_off or "")
+    for frame in open_traverse(robotcar / "night").subset(range(4)):
+        a, b = on.match(frame), off.match(frame)
+        assert np.array_equal(a.same.candidates, b.same.candidates) and a.progress is None
+
+
+def _route_costs(truth: np.ndarray, n_refs: int, rng: np.random.Generator) -> list[np.ndarray]:
+    """Scores of each frame over the map: low at its true map frame, noise elsewhere."""
+    scores = []
+    for true in truth:
+        s = rng.normal(0.0, 1.0, n_refs)
+        s[int(round(true))] -= 6.0
+        scores.append(s)
+    return scores
+
+
+def test_the_sequence_follows_the_distance_through_a_stop_and_changes_of_speed(rng):
+    n_refs = 120
+    route = np.arange(n_refs) * 2.0  # a map frame every 2 m
+    steps = np.concatenate([np.full(8, 3.0), np.zeros(6), np.full(8, 1.0), np.full(10, 4.0)])  # metres a frame
+    progress = 10.0 + np.concatenate([[0.0], np.cumsum(steps)])
+    truth = progress / 2.0  # the true map frame of each query frame
+    scores = _route_costs(truth, n_refs, rng)
+
+    def run(follow_distance: bool) -> np.ndarray:
+        costs = EveryFrameCosts(n_refs, 8, 10, 100.0)
+        speeds = signed((0.8, 1.0, 1.25), stopped=False) if follow_distance else signed((0.5, 1.0, 1.5, 2.0), True)
+        seq = SequenceFilter(8, tuple(speeds), 0, 0.0, costs, anchors=5, neighbourhood=5,
+                             route=route if follow_distance else None, reach=1e9)
+        out = []
+        for t, s in enumerate(scores):
+            result = seq.update(MapScores.of_array(s), np.argsort(s)[:3], None, None,
+                                float(progress[t]) if follow_distance else None)
+            out.append(result.position)
+        return np.array(out)
+
+    after = slice(8, None)  # once the window is full
+    along = run(True)
+    assert np.all(np.abs(along[after] - truth[after]) <= 1.0), np.round(along - truth, 1)
+    frames = run(False)
+    assert np.abs(frames[after] - truth[after]).max() > 1.0  # straight in frames, the stop and the speeds break it

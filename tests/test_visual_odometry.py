@@ -1,0 +1,187 @@
+"""Monocular visual odometry on real frames: nuScenes scene-0523, front and rear camera, against the ego poses.
+
+40 frames per camera at 2 Hz, about 3 m apart: 126 m with a roundabout (a left turn of about 23 degrees in, a
+right turn of about 31 degrees out). Steps are in the camera's ground frame, so the rear camera of the car driving
+forward moves backwards (dx < 0).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+
+import cv2
+import numpy as np
+import pytest
+
+from lostx.core.geometry import CameraGeometry, quaternion_matrix
+from lostx.core.motion.pose import camera_ground_pose, relative, wrap
+from lostx.core.motion.visual import Step, VisualOdometry
+from lostx.core.paths import data_dir
+
+SCENE = data_dir() / "nuscenes-frontrear" / "scene-0523"
+BODY = {"front": 0.0, "rear": 0.12}  # the rear camera sees the boot lid along its bottom edge
+LEFT_TURN, RIGHT_TURN = slice(17, 24), slice(25, 32)  # steps into and out of the roundabout
+
+
+class Camera:
+    """One camera's frames (RGB, loaded on first use), calibration and true ground poses."""
+
+    def __init__(self, name: str) -> None:
+        if not SCENE.exists():
+            pytest.fail(f"test data missing: {SCENE} (set LOSTX_SHARED to the folder holding data/ and models/)")
+        calibration = json.loads((SCENE / "calibration.json").read_text())[name]
+        self.geometry = CameraGeometry.from_pose(
+            np.array(calibration["camera_intrinsic"]), quaternion_matrix(calibration["rotation_in_ego_wxyz"]),
+            np.array(calibration["translation_in_ego_m"]), 1600, 900, body=BODY[name], source=f"{SCENE.name} {name}")
+        with open(SCENE / name / "positions.csv", newline="") as handle:
+            rows = list(csv.DictReader(handle))
+        self.files = [SCENE / name / row["file"] for row in rows]
+        vehicle = np.array([[float(r["x"]), float(r["y"]), math.radians(float(r["vehicle_yaw_deg"]))] for r in rows])
+        poses = camera_ground_pose(vehicle, self.geometry)
+        self.true_steps = relative(poses[:-1], poses[1:])
+        self._frames: dict[int, np.ndarray] = {}
+
+    def frame(self, i: int) -> np.ndarray:
+        if i not in self._frames:
+            self._frames[i] = cv2.cvtColor(cv2.imread(str(self.files[i])), cv2.COLOR_BGR2RGB)
+        return self._frames[i]
+
+    def run(self, indices: range | list[int], odometry: VisualOdometry | None = None, **masks) -> list[Step]:
+        odometry = odometry or VisualOdometry(self.geometry)
+        steps = [odometry.step(self.frame(i), **masks) for i in indices]
+        assert steps[0] is None
+        return steps[1:]
+
+
+@pytest.fixture(scope="module")
+def cameras() -> dict[str, Camera]:
+    return {name: Camera(name) for name in ("front", "rear")}
+
+
+@pytest.fixture(scope="module")
+def whole_scene(cameras) -> dict[str, np.ndarray]:
+    """Each camera's 39 steps over the whole scene, as (39, 3) motions."""
+    return {name: np.array([s.motion for s in camera.run(range(len(camera.files)))])
+            for name, camera in cameras.items()}
+
+
+@pytest.mark.parametrize("name, tolerance", [("front", 0.08), ("rear", 0.10)])
+def test_distance_travelled_matches_the_ego_poses(cameras, whole_scene, name, tolerance):
+    travelled = np.linalg.norm(whole_scene[name][:, :2], axis=1).sum()
+    true = np.linalg.norm(cameras[name].true_steps[:, :2], axis=1).sum()
+    assert 120 < true < 130
+    assert abs(travelled / true - 1) < tolerance, (travelled, true)
+
+
+@pytest.mark.parametrize("name, step_error", [("front", 0.3), ("rear", 0.4)])
+def test_each_step_is_close_to_the_ego_poses(cameras, whole_scene, name, step_error):
+    errors = np.linalg.norm(whole_scene[name][:, :2] - cameras[name].true_steps[:, :2], axis=1)
+    assert errors.mean() < step_error and errors.max() < 1.0, errors.round(2)
+    turn_errors = np.degrees(np.abs(wrap(whole_scene[name][:, 2] - cameras[name].true_steps[:, 2])))
+    assert np.median(turn_errors) < 0.3, turn_errors.round(2)
+
+
+def test_the_front_camera_moves_forwards_and_the_rear_camera_backwards(whole_scene):
+    front, rear = whole_scene["front"], whole_scene["rear"]
+    assert (front[:, 0] > 1.0).all(), front[:, 0].round(2)
+    assert (rear[:, 0] < -1.0).all(), rear[:, 0].round(2)
+    # along the camera's axis: sideways far less than forwards
+    assert (np.abs(front[:, 1]) < 0.2 * front[:, 0]).all() and (np.abs(rear[:, 1]) < 0.2 * -rear[:, 0]).all()
+
+
+@pytest.mark.parametrize("name", ["front", "rear"])
+def test_the_turns_through_the_roundabout(cameras, whole_scene, name):
+    for turn in (LEFT_TURN, RIGHT_TURN):
+        measured = math.degrees(whole_scene[name][turn, 2].sum())
+        true = math.degrees(cameras[name].true_steps[turn, 2].sum())
+        assert abs(true) > 20
+        assert abs(measured - true) < 3.0, (turn, measured, true)
+
+
+def test_the_first_frame_after_a_reset_gives_no_step(cameras):
+    camera = cameras["front"]
+    odometry = VisualOdometry(camera.geometry)
+    assert odometry.step(camera.frame(0)) is None
+    assert isinstance(odometry.step(camera.frame(1)), Step)
+    odometry.reset()
+    assert odometry.step(camera.frame(2)) is None
+    assert odometry.step(camera.frame(3)).motion[0] > 2.0
+
+
+def test_the_same_frame_twice_is_standing_still(cameras):
+    camera = cameras["front"]
+    odometry = VisualOdometry(camera.geometry)
+    odometry.step(camera.frame(5))
+    still = odometry.step(camera.frame(5))
+    assert still.measured and still.quality > 0.5
+    assert np.hypot(*still.motion[:2]) < 0.05 and abs(math.degrees(still.motion[2])) < 0.1
+    moving = odometry.step(camera.frame(6))  # and it moves off again at the next real frame
+    assert moving.measured and abs(moving.motion[0] - camera.true_steps[5, 0]) < 0.5
+
+
+def test_a_noise_frame_gives_a_prediction_not_a_crash(cameras):
+    camera = cameras["front"]
+    noise = np.random.default_rng(0).integers(0, 256, camera.frame(0).shape, dtype=np.uint8)
+    odometry = VisualOdometry(camera.geometry)
+    steps = camera.run(range(8, 12), odometry)
+    last = steps[-1]
+    assert last.measured
+    guess = odometry.step(noise)
+    assert not guess.measured and guess.quality < 0.05
+    np.testing.assert_allclose(guess.motion[:2], last.motion[:2], atol=0.2)  # the same speed and direction
+    after = odometry.step(camera.frame(12))  # compared with the noise: again a prediction
+    assert not after.measured and np.isfinite(after.motion).all()
+    back = odometry.step(camera.frame(13))
+    assert back.measured and abs(back.motion[0] - camera.true_steps[12, 0]) < 0.5
+    odometry.reset()  # noise from the start: nothing measured, nothing known
+    odometry.step(noise)
+    first = odometry.step(noise[::-1].copy())
+    assert not first.measured and first.quality < 0.05 and np.allclose(first.motion, 0.0)
+
+
+def test_masks_at_any_resolution_are_honoured(cameras):
+    camera = cameras["front"]
+    frames = range(20, 24)
+    plain = camera.run(frames)
+    everywhere, nowhere = np.ones((45, 80), bool), np.zeros((90, 160), bool)
+    with_road = camera.run(frames, ground=everywhere)
+    for a, b in zip(plain, with_road):  # all of it road: as without a mask
+        np.testing.assert_allclose(a.motion, b.motion, atol=1e-6)
+    for step in camera.run(frames, ground=nowhere):  # no road: no length, but the turn and direction still
+        assert not step.measured and step.quality == 0.0
+    for step in camera.run(frames, movers=everywhere):  # everything moving: nothing to measure
+        assert not step.measured and step.quality == 0.0
+
+
+def test_the_vehicles_own_body_is_not_looked_at(cameras):
+    """Texture on the rear camera's boot lid moves with the camera; seen, it would say the car stands still."""
+    camera = cameras["rear"]
+    frames = range(4, 10)
+    plain = camera.run(frames)
+    texture = np.random.default_rng(1).integers(0, 256, (90, 1600, 3), dtype=np.uint8)
+    odometry = VisualOdometry(camera.geometry)
+    painted = []
+    for i in frames:
+        image = camera.frame(i).copy()
+        image[-90:] = texture  # the bottom 10 % of the rows, inside body = 0.12
+        painted.append(odometry.step(image))
+    for a, b in zip(plain, painted[1:]):
+        assert np.hypot(*(a.motion[:2] - b.motion[:2])) < 0.15 and abs(a.motion[2] - b.motion[2]) < 0.005
+
+
+def test_a_road_that_does_not_match_gives_no_length(cameras):
+    """Fresh noise on the road in every frame: no length to measure (a prediction), the turn still measured."""
+    camera = cameras["front"]
+    horizon = int(camera.geometry.ground_row(25.0))  # the road below; buildings, trees and sky above
+    rng = np.random.default_rng(2)
+    odometry = VisualOdometry(camera.geometry)
+    for i in range(20, 25):
+        image = camera.frame(i).copy()
+        noise = cv2.GaussianBlur(rng.normal(128.0, 30.0, (900 - horizon, 1600)).astype(np.float32), (0, 0), 2.0)
+        image[horizon:] = np.clip(noise, 0, 255).astype(np.uint8)[..., None]
+        step = odometry.step(image)
+        if i > 20:
+            assert not step.measured and step.quality < 0.05
+            assert abs(math.degrees(step.motion[2] - camera.true_steps[i - 1, 2])) < 0.5
