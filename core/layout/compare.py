@@ -40,12 +40,14 @@ class GridStack:
         return cls(np.stack([g.values for g in grids]), np.stack([g.mask for g in grids]))
 
     def rows(self, indices: np.ndarray) -> "GridStack":
-        """The grids ``indices`` as a stack of their own."""
-        c = self.channels
-        a, x = self.shape
-        values = self.values[:, :, indices].transpose(2, 0, 1).reshape(len(indices), c, a, x)
-        masks = self.mask_t[:, indices].T.reshape(len(indices), a, x)
-        return GridStack(values, masks > 0)
+        """The grids ``indices`` as a stack of their own (their prepared sums taken as they are)."""
+        out = GridStack.__new__(GridStack)
+        out.n, out.channels, out.shape = len(indices), self.channels, self.shape
+        out.mask_t = np.ascontiguousarray(self.mask_t[:, indices])
+        sums = self.sums_t.reshape(self.sums_t.shape[0], self.n, -1)[:, indices]
+        out.sums_t = np.ascontiguousarray(sums.reshape(self.sums_t.shape[0], -1))
+        out.values = np.ascontiguousarray(self.values[:, :, indices])
+        return out
 
 
 def shifted(grid: LayoutGrid, shift: int) -> LayoutGrid:
@@ -77,7 +79,7 @@ def similarity(query: LayoutGrid, maps: GridStack, weights: np.ndarray, shifts: 
     # Map-side sums over the query's mask: S_y, S_yy.
     theirs = (m @ maps.sums_t).reshape(s, maps.n, 2 * c).transpose(0, 2, 1)
     sy, syy = theirs[:, :c], theirs[:, c:]
-    sxy = np.einsum("scp,cpn->scn", q, maps.values, optimize=True)
+    sxy = np.matmul(q.transpose(1, 0, 2), maps.values).transpose(1, 0, 2)  # (S, C, N)
     with np.errstate(divide="ignore", invalid="ignore"):
         count = np.maximum(n, 1.0)
         cov = sxy - sx * sy / count

@@ -94,7 +94,9 @@ class CombinedScores:
         if self.lost.removed is not None:
             keep = (sample < self.lost.removed.start) | (sample >= self.lost.removed.stop)
         sample = sample[keep]
-        self._lost_moments = _moments(self.lost.at(sample))
+        # A small map's LoST-X scores of every frame, computed once for the moments and every look-up.
+        self._lost_every = self.lost.every() if n <= EVERY_FRAME_MAX else None
+        self._lost_moments = _moments(self._lost_every[sample] if self._lost_every is not None else self.lost.at(sample))
         layout = self.layout.at(sample)
         self._layout_moments = _moments(layout)
         self._floor = float(np.min(layout[np.isfinite(layout)])) if np.isfinite(layout).any() else 0.0
@@ -114,11 +116,13 @@ class CombinedScores:
         return (lost - lm) / ls - self.weight * (layout - ym) / ys
 
     def every(self) -> np.ndarray:
-        return self._removed(np.arange(self.n_frames), self._combine(self.lost.every(), self.layout.every()))
+        lost = self._lost_every if self._lost_every is not None else self.lost.every()
+        return self._removed(np.arange(self.n_frames), self._combine(lost, self.layout.every()))
 
     def at(self, refs: np.ndarray) -> np.ndarray:
         refs = np.asarray(refs, dtype=np.int64)
-        return self._removed(refs, self._combine(self.lost.at(refs), self.layout.at(refs)))
+        lost = self._lost_every[refs] if self._lost_every is not None else self.lost.at(refs)
+        return self._removed(refs, self._combine(lost, self.layout.at(refs)))
 
     def _removed(self, refs: np.ndarray, out: np.ndarray) -> np.ndarray:
         if self.removed is not None:
