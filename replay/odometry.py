@@ -15,13 +15,14 @@ odometry frame: only the motion between frames is used, so its origin does not m
 
 from __future__ import annotations
 
-import csv
 import math
 from pathlib import Path
 
 import numpy as np
 
 from lostx.core.errors import InputError
+
+from .positions import read_csv
 
 ODOMETRY_FILE = "odometry.csv"
 MAX_GAP_S = 1.0
@@ -34,7 +35,7 @@ _POSE = ("x", "y", "yaw")
 def read_odometry_csv(path: str | Path, names: list[str], timestamps: np.ndarray | None) -> np.ndarray:
     """(N, 3) x, y, yaw (radians) for the images ``names`` (name order) from an odometry CSV."""
     path = Path(path)
-    header, rows = _read_rows(path)
+    header, rows = read_csv(path, "odometry", "file,x,y,yaw")
     col = {name: i for i, name in enumerate(header)}
     missing = [name for name in _POSE if name not in col]
     if missing:
@@ -53,20 +54,6 @@ def read_odometry_csv(path: str | Path, names: list[str], timestamps: np.ndarray
         raise InputError(f"{path}: {len(poses)} odometry rows for {len(names)} images; add a file or timestamp "
                          f"column, or give one row per image in name order")
     return poses
-
-
-def _read_rows(path: Path) -> tuple[list[str], list[tuple[int, list[str]]]]:
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except FileNotFoundError:
-        raise InputError(f"odometry file not found: {path}") from None
-    except UnicodeDecodeError:
-        raise InputError(f"{path}: not a text CSV file") from None
-    rows = list(csv.reader(text.splitlines()))
-    if not rows:
-        raise InputError(f"{path}: empty odometry file (expected a header row such as 'file,x,y,yaw')")
-    body = [(line, row) for line, row in enumerate(rows[1:], start=2) if any(cell.strip() for cell in row)]
-    return [h.strip().lower() for h in rows[0]], body
 
 
 def _parse(path: Path, header: list[str], rows: list[tuple[int, list[str]]], pose_cols: list[int],
@@ -166,7 +153,7 @@ def read_robotcar_vo(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     come out in lostx's frame (y left, yaw anticlockwise).
     """
     path = Path(path)
-    header, rows = _read_rows(path)
+    header, rows = read_csv(path, "odometry", ",".join(_VO_COLUMNS))
     col = {name: i for i, name in enumerate(header)}
     missing = [name for name in _VO_COLUMNS if name not in col]
     if missing:

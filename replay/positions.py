@@ -47,18 +47,25 @@ def latlon_to_local(lat: np.ndarray, lon: np.ndarray, origin: tuple[float, float
     return np.stack([east, north], axis=1)
 
 
-def read_positions(path: str | Path) -> PositionTable:
-    path = Path(path)
+def read_csv(path: Path, kind: str, example: str) -> tuple[list[str], list[tuple[int, list[str]]]]:
+    """A CSV file's header (lower case) and its non-blank rows with their line numbers; one-line errors naming
+    the ``kind`` of file (e.g. ``positions``) and an ``example`` header for an empty one."""
     try:
         text = path.read_text(encoding="utf-8-sig")  # a spreadsheet's byte-order mark is not part of the header
     except FileNotFoundError:
-        raise InputError(f"positions file not found: {path}") from None
+        raise InputError(f"{kind} file not found: {path}") from None
     except UnicodeDecodeError:
         raise InputError(f"{path}: not a text CSV file") from None
     rows = list(csv.reader(text.splitlines()))
     if not rows:
-        raise InputError(f"{path}: empty positions file (expected a header row such as 'file,x,y')")
-    header = [h.strip().lower() for h in rows[0]]
+        raise InputError(f"{path}: empty {kind} file (expected a header row such as '{example}')")
+    body = [(line, row) for line, row in enumerate(rows[1:], start=2) if any(cell.strip() for cell in row)]
+    return [h.strip().lower() for h in rows[0]], body
+
+
+def read_positions(path: str | Path) -> PositionTable:
+    path = Path(path)
+    header, rows = read_csv(path, "positions", "file,x,y")
     col = {name: i for i, name in enumerate(header)}
 
     def find(names: tuple[str, ...]) -> int | None:
@@ -71,13 +78,11 @@ def read_positions(path: str | Path) -> PositionTable:
         geographic = True
     if pair is None:
         raise InputError(
-            f"{path}:1: header {rows[0]} has no position columns; expected x,y (metres) or lat,lon (degrees)"
+            f"{path}:1: header {header} has no position columns; expected x,y (metres) or lat,lon (degrees)"
         )
     file_col, time_col = find(_FILE), find(_TIME)
     values, stamps, files, lines = [], [], [], []
-    for line, row in enumerate(rows[1:], start=2):
-        if not row or all(not cell.strip() for cell in row):
-            continue
+    for line, row in rows:
         needed = [c for c in (*pair, file_col, time_col) if c is not None]
         if len(row) <= max(needed):
             raise InputError(f"{path}:{line}: expected {len(header)} columns, got {len(row)}: {row}")
