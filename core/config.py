@@ -402,7 +402,7 @@ class Bounds:
 _AT_LEAST_0, _AT_LEAST_1, _ABOVE_0 = Bounds(0), Bounds(1), Bounds(0, above=True)
 
 LIMITS: dict[str, dict[str, Bounds]] = {
-    "backbone": {"threads": _AT_LEAST_1},
+    "backbone": {"threads": Bounds(1, 256)},
     "lost": {
         "coverage_frames": _AT_LEAST_0, "coverage_warning": Bounds(0, 1), "reference_window": _AT_LEAST_1,
         "query_window": _AT_LEAST_1, "prior_frames": _AT_LEAST_0,
@@ -412,7 +412,7 @@ LIMITS: dict[str, dict[str, Bounds]] = {
     "camera": {"hfov_deg": Bounds(0, 180, above=True), "view_hfov_deg": Bounds(0, 180, above=True),
                "ignore_top": Bounds(0, 0.9), "ignore_bottom": Bounds(0, 0.9)},
     "sequence": {
-        "length": _AT_LEAST_1, "speeds": _AT_LEAST_0, "acquire_speeds": _ABOVE_0, "anchors": _AT_LEAST_0, "nearest": _AT_LEAST_0,
+        "length": Bounds(1, 100_000), "speeds": _AT_LEAST_0, "acquire_speeds": _ABOVE_0, "anchors": _AT_LEAST_0, "nearest": _AT_LEAST_0,
         "costs_min_frames": _AT_LEAST_1,
         "radius": _AT_LEAST_0, "contrast_window": Bounds(2), "reference_prior": _AT_LEAST_0,
         "penalty": Bounds(), "exclusion": _AT_LEAST_0, "distance_window": _ABOVE_0, "distance_ratios": _ABOVE_0,

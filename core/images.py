@@ -23,13 +23,45 @@ def list_images(folder: str | Path) -> list[Path]:
     return files
 
 
+MAX_PIXELS = 100_000_000
+"""Image files declaring more pixels than this are refused before they are decoded (a few kilobytes of PNG
+can declare gigabytes of pixels)."""
+
+
+def declared_size(path: Path) -> tuple[int, int] | None:
+    """(width, height) the file's header declares, read without decoding the pixels (None: a format whose
+    header Pillow does not read)."""
+    import warnings
+
+    from PIL import Image
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)  # lostx judges the size itself
+            with Image.open(path) as image:
+                return image.size
+    except Image.DecompressionBombError as exc:
+        raise ImageError(f"cannot read image {path}: it declares too many pixels ({exc})") from None
+    except (OSError, ValueError, SyntaxError):
+        return None
+
+
 def decode_file(path: str | Path, flags: int = cv2.IMREAD_COLOR) -> np.ndarray:
     """The image in a file, decoded by OpenCV with ``flags`` (BGR order), or an error naming the file."""
     path = Path(path)
     data = np.fromfile(path, dtype=np.uint8) if path.is_file() else None
     if data is None:
         raise ImageError(f"cannot read image {path}: no such file")
-    image = cv2.imdecode(data, flags) if data.size else None
+    size = declared_size(path) if data.size else None
+    if size is not None and size[0] * size[1] > MAX_PIXELS:
+        raise ImageError(f"cannot read image {path}: it declares {size[0]} x {size[1]} pixels, over the limit of "
+                         f"{MAX_PIXELS // 1_000_000} megapixels")
+    previous = cv2.utils.logging.getLogLevel()
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)  # lostx reports a corrupt file itself
+    try:
+        image = cv2.imdecode(data, flags) if data.size else None
+    finally:
+        cv2.utils.logging.setLogLevel(previous)
     if image is None:
         raise ImageError(f"cannot read image {path}: not a decodable image ({data.size} bytes)")
     return image

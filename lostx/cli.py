@@ -63,6 +63,11 @@ def main(argv: list[str] | None = None) -> int:
         return int(args.run(args) or 0)
     except LostxError as exc:
         return _fail(str(exc))
+    except BrokenPipeError:
+        # The reader of the output went away (`lostx map info MAP | head -3`): nothing more to say, and
+        # Python's own flush at exit must not complain either.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
     except OSError as exc:
         # A file the command had to write or read failed under it (disk full, permissions): say which.
         return _fail(f"{exc.strerror or exc}: {exc.filename}" if exc.filename else str(exc))

@@ -6,6 +6,7 @@ import argparse
 import contextlib
 import dataclasses
 import math
+import re
 import signal
 import sys
 import time
@@ -14,7 +15,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from lostx.core.backbones.presets import PRESETS
-from lostx.core.config import Config, load_config
+from lostx.core.config import LIMITS, Config, load_config
 
 DEFAULTS = Config()
 
@@ -23,34 +24,63 @@ if TYPE_CHECKING:
     from lostx.viz.sink import RerunSink
 
 
-def whole_number(minimum: int = 1):
-    """argparse ``type``: an integer of at least ``minimum``, or a one-line error naming the value."""
+def whole_number(minimum: int = 1, maximum: int | None = None):
+    """argparse ``type``: an integer of at least ``minimum`` (and at most ``maximum``), or a one-line error naming
+    the value and the range."""
 
     def parse(text: str) -> int:
         try:
             value = int(text)
         except ValueError:
             raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
-        if value < minimum:
-            raise argparse.ArgumentTypeError(f"must be at least {minimum}, got {value}")
+        if value < minimum or (maximum is not None and value > maximum):
+            allowed = f"between {minimum} and {maximum}" if maximum is not None else f"at least {minimum}"
+            raise argparse.ArgumentTypeError(f"must be {allowed}, got {value}")
         return value
 
     return parse
 
 
-def number(minimum: float = 0.0, above: bool = False):
-    """argparse ``type``: a finite number of at least ``minimum`` (or above it, with ``above``)."""
+def number(minimum: float = 0.0, above: bool = False, maximum: float | None = None):
+    """argparse ``type``: a finite number of at least ``minimum`` (or above it, with ``above``; and at most
+    ``maximum``)."""
 
     def parse(text: str) -> float:
         try:
             value = float(text)
         except ValueError:
             raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-        if not math.isfinite(value) or value < minimum or (above and value == minimum):
-            raise argparse.ArgumentTypeError(f"must be {'above' if above else 'at least'} {minimum:g}, got {text}")
+        if (not math.isfinite(value) or value < minimum or (above and value == minimum)
+                or (maximum is not None and value > maximum)):
+            allowed = f"{'above' if above else 'at least'} {minimum:g}"
+            if maximum is not None:
+                allowed += f" and at most {maximum:g}"
+            raise argparse.ArgumentTypeError(f"must be {allowed}, got {text}")
         return value
 
     return parse
+
+
+MAX_FPS = 1000.0
+"""Frames per second of recorded time that ``--fps`` may keep (beyond any camera's rate)."""
+
+
+def _most(section: str, key: str) -> int:
+    """The largest valid value of a whole-number setting (lostx.core.config.LIMITS): options and files agree."""
+    return int(LIMITS[section][key].high)  # type: ignore[arg-type]
+
+
+window_length = whole_number(1, _most("sequence", "length"))
+"""argparse ``type`` of a sequence window's length in frames."""
+
+MEMORY = re.compile(r"^\d+(\.\d+)?\s*(%|B|kB|KB|MB|GB|TB|KiB|MiB|GiB|TiB)?$")
+
+
+def memory_limit(text: str) -> str:
+    """argparse ``type``: a memory limit as Rerun takes it (``4GiB``, ``500MB``, ``25%``)."""
+    if not MEMORY.match(text.strip()) or (text.strip().endswith("%") and not 0 < float(text.strip()[:-1]) <= 100):
+        raise argparse.ArgumentTypeError(f"expected an amount such as 4GiB, 500MB or 25%, got {text!r}")
+    return text.strip()
 
 
 def add_backbone_options(parser: argparse.ArgumentParser) -> None:
@@ -62,7 +92,7 @@ def add_backbone_options(parser: argparse.ArgumentParser) -> None:
                                                    "with it beside")
     group.add_argument("--device", help=f"auto, cpu, cuda or cuda:N (PyTorch and ONNX backbones; default "
                                         f"{DEFAULTS.backbone.device})")
-    group.add_argument("--threads", type=whole_number(1), metavar="N",
+    group.add_argument("--threads", type=whole_number(1, _most("backbone", "threads")), metavar="N",
                        help=f"CPU threads for the network (default {DEFAULTS.backbone.threads})")
     group.add_argument("--class-preset", choices=sorted(PRESETS),
                        help="descriptor classes by name: street (road, building, vegetation) or indoor (wall, floor, "
@@ -79,7 +109,7 @@ def add_config_options(parser: argparse.ArgumentParser, matching: bool = True) -
     group.add_argument("--scoring", choices=["eq4-lost", "eq4", "released"], help="verification score")
     group.add_argument("--top-k", type=whole_number(1), metavar="K",
                        help=f"candidates verified per query (default {DEFAULTS.verify.top_k})")
-    group.add_argument("--window", type=whole_number(1), metavar="L",
+    group.add_argument("--window", type=window_length, metavar="L",
                        help=f"frames in the sequence filter's window (default {DEFAULTS.sequence.length})")
     group.add_argument("--no-tracker", action="store_true", help="answer without the route tracker")
     group.add_argument("--index", choices=["auto", "on", "off"],
@@ -141,8 +171,9 @@ def add_source_options(parser: argparse.ArgumentParser, *, format: bool = True, 
                        help="nuScenes: positions M metres along the camera's heading (default 15) instead of "
                             "the vehicle's")
     frames = group.add_mutually_exclusive_group()
-    frames.add_argument("--every", type=int, metavar="N", help="keep every N-th frame")
-    frames.add_argument("--fps", type=float, metavar="F", help="keep F frames per second of recorded time")
+    frames.add_argument("--every", type=whole_number(1), metavar="N", help="keep every N-th frame")
+    frames.add_argument("--fps", type=number(0.0, above=True, maximum=MAX_FPS), metavar="F",
+                        help=f"keep F frames per second of recorded time (at most {MAX_FPS:g})")
     if reverse:
         group.add_argument("--reverse", action="store_true", help="the frames in reverse order, timestamps "
                            "reflected: the route driven the other way")
@@ -239,14 +270,14 @@ def add_viewer_options(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--web", nargs="?", const=DEFAULT_WEB_ADDRESS, metavar="ADDRESS", type=_web_address,
                        help=f"serve the web viewer and print its URL; it listens on {DEFAULT_WEB_ADDRESS} unless "
                             f"given an address (0.0.0.0: every interface, for other machines)")
-    group.add_argument("--web-port", type=int, default=WEB_PORT, metavar="PORT",
+    group.add_argument("--web-port", type=whole_number(0, 65535), default=WEB_PORT, metavar="PORT",
                        help=f"port of the web viewer's page (default {WEB_PORT}; 0: a free one)")
-    group.add_argument("--grpc-port", type=int, default=GRPC_PORT, metavar="PORT",
+    group.add_argument("--grpc-port", type=whole_number(0, 65535), default=GRPC_PORT, metavar="PORT",
                        help=f"port the web viewer reads the recording from (default {GRPC_PORT}; 0: a free one)")
-    group.add_argument("--viewer-rate", type=float, default=10.0, metavar="HZ",
+    group.add_argument("--viewer-rate", type=number(0.0), default=10.0, metavar="HZ",
                        help="most frames per second whose images, label maps, lines and sequence window are logged "
                             "(the rest of the view is logged every frame; 0: every frame; default 10)")
-    group.add_argument("--viewer-memory", default=DEFAULT_MEMORY_LIMIT, metavar="LIMIT",
+    group.add_argument("--viewer-memory", type=memory_limit, default=DEFAULT_MEMORY_LIMIT, metavar="LIMIT",
                        help=f"memory limit of the native viewer and the web viewer's recording buffer, e.g. 4GiB or 25%% "
                             f"(oldest data dropped first; default {DEFAULT_MEMORY_LIMIT})")
 

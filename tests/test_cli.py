@@ -160,17 +160,17 @@ def test_map_build_help_lists_only_the_options_that_act_there():
 @pytest.mark.parametrize(
     "args, message",
     [
-        (["match", "M", "Q", "--out", "o.csv", "--window", "-1"], "argument --window: must be at least 1, got -1"),
-        (["match", "M", "Q", "--out", "o.csv", "--window", "0"], "argument --window: must be at least 1, got 0"),
+        (["match", "M", "Q", "--out", "o.csv", "--window", "-1"], "argument --window: must be between 1 and 100000, got -1"),
+        (["match", "M", "Q", "--out", "o.csv", "--window", "0"], "argument --window: must be between 1 and 100000, got 0"),
         (["match", "M", "Q", "--out", "o.csv", "--window", "ten"],
          "argument --window: expected a whole number, got 'ten'"),
         (["match", "M", "Q", "--out", "o.csv", "--top-k", "-2"], "argument --top-k: must be at least 1, got -2"),
         (["match", "M", "Q", "--out", "o.csv", "--top-k", "0"], "argument --top-k: must be at least 1, got 0"),
-        (["map", "build", "I", "--out", "m", "--threads", "0"], "argument --threads: must be at least 1, got 0"),
+        (["map", "build", "I", "--out", "m", "--threads", "0"], "argument --threads: must be between 1 and 256, got 0"),
         (["map", "build", "I", "--out", "m", "--window", "3"],
          "unrecognized arguments: --window 3 (see 'lostx map build --help')"),
-        (["serve", "--map", "M", "--window", "0"], "argument --window: must be at least 1, got 0"),
-        (["demo", "--window", "0"], "argument --window: must be at least 1, got 0"),
+        (["serve", "--map", "M", "--window", "0"], "argument --window: must be between 1 and 100000, got 0"),
+        (["demo", "--window", "0"], "argument --window: must be between 1 and 100000, got 0"),
         (["demo", "--rate", "0"], "argument --rate: must be above 0, got 0"),
         (["replay", "S", "--to", "tcp://127.0.0.1:1", "--rate", "-5"], "argument --rate: must be above 0, got -5"),
         (["replay", "S", "--to", "tcp://127.0.0.1:1", "--wait", "nan"], "argument --wait: must be at least 0, got nan"),
@@ -193,7 +193,7 @@ def test_a_bad_value_in_a_config_file_is_one_line_naming_file_and_key(cli_map, r
     config = tmp_path / "bad.toml"
     config.write_text("[sequence]\nlength = -3\n")
     proc = lostx("match", cli_map, robotcar / "night", "--out", tmp_path / "m.csv", "--sequence", "--config", config)
-    assert_one_line_error(proc, f"lostx: error: {config}: [sequence] length must be at least 1, got -3")
+    assert_one_line_error(proc, f"lostx: error: {config}: [sequence] length must be between 1 and 100000, got -3")
 
 
 def test_the_child_processes_run_the_installed_lostx_whatever_the_working_folder(tmp_path):

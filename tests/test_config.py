@@ -67,10 +67,10 @@ def test_broken_toml_is_an_input_error(tmp_path):
 @pytest.mark.parametrize(
     "data, message",
     [
-        ({"sequence": {"length": -3}}, "[sequence] length must be at least 1, got -3"),
-        ({"sequence": {"length": 0}}, "[sequence] length must be at least 1, got 0"),
+        ({"sequence": {"length": -3}}, "[sequence] length must be between 1 and 100000, got -3"),
+        ({"sequence": {"length": 0}}, "[sequence] length must be between 1 and 100000, got 0"),
         ({"verify": {"top_k": -2}}, "[verify] top_k must be at least 1, got -2"),
-        ({"backbone": {"threads": 0}}, "[backbone] threads must be at least 1, got 0"),
+        ({"backbone": {"threads": 0}}, "[backbone] threads must be between 1 and 256, got 0"),
         ({"decision": {"min_confidence": 1.5}}, "[decision] min_confidence must be between 0 and 1, got 1.5"),
         ({"heading": {"vote_reliability": 0.4}}, "[heading] vote_reliability must be between 0.5 and 0.999, got 0.4"),
         ({"camera": {"hfov_deg": {"rear": 0}}}, "[camera] hfov_deg must be above 0, at most 180, got 0.0"),
@@ -89,7 +89,7 @@ def test_values_outside_their_range_name_the_file_and_the_key(data, message):
 
 def test_every_way_of_making_a_config_checks_the_ranges():
     config = Config()
-    with pytest.raises(InputError, match=r"\[sequence\] length must be at least 1, got -1"):
+    with pytest.raises(InputError, match=r"\[sequence\] length must be between 1 and 100000, got -1"):
         dataclasses.replace(config, sequence=dataclasses.replace(config.sequence, length=-1))
     with pytest.raises(InputError, match=r"\[verify\] top_k must be at least 1, got 0"):
         Config(verify=dataclasses.replace(config.verify, top_k=0))

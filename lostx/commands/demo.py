@@ -25,7 +25,7 @@ from lostx.options import (
     number,
     terminate_as_interrupt,
     viewer_args,
-    whole_number,
+    window_length,
 )
 
 if TYPE_CHECKING:
@@ -43,7 +43,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("--rebuild", action="store_true", help="rebuild the map even if one is there")
     parser.add_argument("--rate", type=number(0, above=True), default=4.0, metavar="HZ",
                         help="replay rate of the night frames (default 4; a slower localizer holds the replay back)")
-    parser.add_argument("--window", type=whole_number(1), default=3, metavar="L",
+    parser.add_argument("--window", type=window_length, default=3, metavar="L",
                         help="sequence window in frames (default 3: the sample traverse has only 10 frames)")
     add_backbone_options(parser)
     add_viewer_options(parser)
