@@ -7,6 +7,7 @@ import shutil
 import struct
 import subprocess
 import sys
+import time
 import zlib
 from pathlib import Path
 
@@ -103,3 +104,45 @@ def test_a_reader_that_stops_early_is_no_error(day_map):
 def test_a_frame_of_reasonable_size_still_reads(robotcar):
     image = read_image(sorted((robotcar / "day").glob("*.png"))[0])
     assert image.shape == (640, 1024, 3) and image.dtype == np.uint8
+
+
+def _rows(path: Path) -> list[str]:
+    return [line for line in path.read_text().splitlines()[1:] if line]
+
+
+def test_match_keeps_the_answers_before_a_frame_it_cannot_read(day_map, robotcar, tmp_path):
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for i, path in enumerate(sorted((robotcar / "night").glob("*.png"))[:6]):
+        shutil.copy(path, folder / f"{i:03d}.png")
+    (folder / "004.png").write_bytes(b"not an image at all")
+    out = tmp_path / "m.csv"
+    proc = lostx("match", day_map.path, folder, "--out", out, "--quiet")
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert "4 of 6 frames answered before it stopped; their answers are in" in proc.stderr
+    assert "004.png" in proc.stderr
+    rows = _rows(out)
+    assert [row.split(",")[1] for row in rows] == [f"{i:03d}.png" for i in range(4)]
+
+
+def test_match_keeps_the_answers_when_terminated(day_map, nordland, tmp_path):
+    out = tmp_path / "m.csv"
+    # 3576 frames: the command is still matching when it is told to stop.
+    proc = subprocess.Popen([sys.executable, "-m", "lostx.cli", "match", str(day_map.path), str(nordland / "winter"),
+                             "--out", str(out), "--quiet"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and (not out.exists() or len(_rows(out)) < 2):
+        time.sleep(0.05)
+    proc.terminate()
+    _, stderr = proc.communicate(timeout=60)
+    assert proc.returncode == 130 and "Traceback" not in stderr
+    answered = len(_rows(out))
+    assert 2 <= answered < 3576
+    assert f"{answered} of 3576 frames answered before it stopped" in stderr
+
+
+def test_an_output_that_cannot_be_written_fails_before_any_frame(day_map, robotcar):
+    start = time.monotonic()
+    proc = lostx("match", day_map.path, robotcar / "night", "--out", "/proc/nope.csv")
+    assert_one_line_error(proc, "/proc/nope.csv")
+    assert "matching" not in proc.stderr and time.monotonic() - start < 30

@@ -257,12 +257,14 @@ def test_an_error_during_matching_starts_a_line_of_its_own(robotcar, cli_map, tm
     images.mkdir()
     for name in sorted(os.listdir(robotcar / "night"))[:4]:
         shutil.copy(robotcar / "night" / name, images / name)
-    (images / "0000064.png").write_bytes(b"not an image")  # third in name order
+    (images / "0000064.png").write_bytes(b"not an image")  # second in name order
     proc = lostx("match", cli_map, images, "--out", tmp_path / "m.csv")  # progress bar on
     assert proc.returncode == 2 and "matching" in proc.stderr  # it failed during the work
     assert render(proc.stderr)[-1].startswith("lostx: error: ")
     assert "0000064.png" in render(proc.stderr)[-1]
-    assert not (tmp_path / "m.csv").exists() and not (tmp_path / "m.csv.partial").exists()
+    # The answers before it are kept, and the message says where.
+    assert "1 of 5 frames answered before it stopped" in render(proc.stderr)[-1]
+    assert len((tmp_path / "m.csv").read_text().splitlines()) == 1 + 1
 
 
 def test_match_says_why_the_sequence_answers_are_not_localized(cli_map, robotcar, tmp_path):

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import csv
 import dataclasses
+import sys
 import time
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -18,6 +19,7 @@ from lostx.options import (
     print_notes,
     serve_until_interrupted,
     source_options_from_args,
+    terminate_as_interrupt,
 )
 
 if TYPE_CHECKING:
@@ -56,7 +58,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from lostx.core.errors import InputError, MapError
+    from lostx.core.errors import InputError, LostxError, MapError
     from lostx.core.localizer import Localizer
     from lostx.core.outputs import check_output_file
     from lostx.core.maps.refmap import ReferenceMap
@@ -84,22 +86,58 @@ def run(args: argparse.Namespace) -> int:
         print(f"note: the sequence window is {window} frames and {args.queries} has {len(queries)}: the window "
               f"never fills, so every answer is not_localized; pass --window {len(queries)} or less")
     localizer = Localizer(refmap, config)
-    with live_view(args, refmap) as sink:
+    columns = COLUMNS + (SEQUENCE_COLUMNS if args.sequence else []) + HEADING_COLUMNS
+    with live_view(args, refmap) as sink, AnswersFile(args.out, columns, len(queries)) as answers:
         start = time.perf_counter()
-        rows, estimates = [], []
-        with tqdm(queries, total=len(queries), desc="matching", unit="frame", disable=args.quiet, leave=False) as bar:
-            for frame in bar:
-                estimate = localizer.step(frame)
-                if sink is not None:
-                    sink(frame, estimate)
-                estimates.append(estimate)
-                rows.append(csv_row(frame.name, estimate, refmap, args.sequence))
+        estimates = []
+        with terminate_as_interrupt(), tqdm(queries, total=len(queries), desc="matching", unit="frame",
+                                            disable=args.quiet, leave=False) as bar:
+            try:
+                for frame in bar:
+                    estimate = localizer.step(frame)
+                    if sink is not None:
+                        sink(frame, estimate)
+                    estimates.append(estimate)
+                    answers.add(csv_row(frame.name, estimate, refmap, args.sequence))
+            except LostxError as exc:
+                raise type(exc)(f"{exc} ({answers.kept()})") from None
         elapsed = time.perf_counter() - start
-        write_csv(args.out, COLUMNS + (SEQUENCE_COLUMNS if args.sequence else []) + HEADING_COLUMNS, rows)
+        answers.complete = True
         print(summary_line(estimates, elapsed, args.out, window if args.sequence else None), flush=True)
         # The results are written: the web viewer may stay up as long as the user likes.
         serve_until_interrupted(sink)
     return 0
+
+
+class AnswersFile:
+    """The CSV of answers, written as they come: each row flushed to the disk, so that whatever stops the
+    command (Ctrl-C, SIGTERM, a frame it cannot read) leaves a complete CSV of the frames answered so far, and
+    says so. Opened before any frame is matched: an ``--out`` that cannot be written fails at once."""
+
+    def __init__(self, path: Path, columns: list[str], total: int) -> None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        self.path, self.total, self.rows = path, total, 0
+        self.complete = False
+        self._handle = open(path, "w", newline="")
+        self._writer = csv.DictWriter(self._handle, fieldnames=columns)
+        self._writer.writeheader()
+        self._handle.flush()
+
+    def __enter__(self) -> "AnswersFile":
+        return self
+
+    def add(self, row: dict[str, object]) -> None:
+        self._writer.writerow(row)
+        self._handle.flush()
+        self.rows += 1
+
+    def kept(self) -> str:
+        return f"{self.rows} of {self.total} frames answered before it stopped; their answers are in {self.path}"
+
+    def __exit__(self, kind: type | None, *exc: object) -> None:
+        self._handle.close()
+        if kind is KeyboardInterrupt:  # an error's message says it already
+            print(f"lostx: {self.kept()}", file=sys.stderr, flush=True)
 
 
 def csv_row(name: str, estimate: Estimate, refmap: ReferenceMap, sequence: bool) -> dict[str, object]:
@@ -122,20 +160,6 @@ def csv_row(name: str, estimate: Estimate, refmap: ReferenceMap, sequence: bool)
         row["state"] = estimate.state
         row["speed"] = "" if estimate.speed is None else f"{estimate.speed:.3f}"
     return row
-
-
-def write_csv(path: Path, columns: list[str], rows: list[dict[str, object]]) -> None:
-    """Write the CSV whole or not at all: a failed write leaves no partial file behind."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".partial")
-    try:
-        with open(tmp, "w", newline="") as handle:
-            writer = csv.DictWriter(handle, fieldnames=columns)
-            writer.writeheader()
-            writer.writerows(rows)
-        tmp.replace(path)
-    finally:
-        tmp.unlink(missing_ok=True)
 
 
 def summary_line(estimates: list[Estimate], elapsed: float, out: Path, window: int | None = None) -> str:
