@@ -131,7 +131,7 @@ def _windowed(
     def ready(j: int, newest: int) -> bool:
         if newest - j < half:
             return False
-        item = next(h for h in held if h.index == j)
+        item = held[j - held[0].index]
         if item.placed is None or layout is None or newest - j >= reach:
             return True
         return held[-1].placed is not None and held[-1].placed.travelled >= item.placed.travelled + layout.map_travel
@@ -140,7 +140,7 @@ def _windowed(
         span = centred_window(j, length, window)
         chosen = [h.described for h in held if span.start <= h.index < span.stop]
         mu, _ = window_means(np.stack([d.means for d in chosen]), np.stack([d.present for d in chosen]))
-        item = next(h for h in held if h.index == j)
+        item = held[j - held[0].index]
         grid = None
         if item.placed is not None and layout is not None:
             placed = [h for h in held if h.placed is not None]

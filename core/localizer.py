@@ -126,7 +126,7 @@ class Localizer:
         self.matcher.reset()
         self.sequence = self._sequence_filter(None)
         self.following_distance = None
-        self._last_progress: float | None = None
+        self._last_progress = None
         self.tracker.reset()
         self.heading.reset()
         self._last_timestamp = None
@@ -160,7 +160,7 @@ class Localizer:
         result = matches[heading]
         latency = {k: 1e3 * v for k, v in result.timings.items()}
         if self.config.sequence.enabled:
-            if self.following_distance is None or (not self.following_distance and matches.progress is not None):
+            if not self.following_distance:
                 self._follow(matches.progress)
             progress = matches.progress if self.following_distance else None
             if self.following_distance and progress is None:

@@ -70,6 +70,13 @@ class LayoutScores:
         return scores
 
 
+def sampled(n_frames: int) -> np.ndarray:
+    """The map frames a map's spread of scores is measured on: all of a small map, an even sample of a larger one."""
+    if n_frames <= EVERY_FRAME_MAX:
+        return np.arange(n_frames)
+    return np.linspace(0, n_frames - 1, SAMPLE).astype(np.int64)
+
+
 def _moments(values: np.ndarray) -> tuple[float, float]:
     finite = values[np.isfinite(values)]
     if len(finite) < 2:
@@ -89,7 +96,7 @@ class CombinedScores:
 
     def __post_init__(self) -> None:
         n = self.lost.n_frames
-        sample = np.arange(n) if n <= EVERY_FRAME_MAX else np.linspace(0, n - 1, SAMPLE).astype(np.int64)
+        sample = sampled(n)
         keep = np.ones(len(sample), dtype=bool)
         if self.lost.removed is not None:
             keep = (sample < self.lost.removed.start) | (sample >= self.lost.removed.stop)
@@ -136,8 +143,7 @@ def layout_vote(same: LayoutScores, opposite: LayoutScores) -> float:
     against their own spread, since comparing grids as they are and turned differs for every pair of
     frames, not only the true one (both cameras see road straight ahead)."""
     def lead(scores: LayoutScores) -> float:
-        values = scores.every() if scores.n_frames <= EVERY_FRAME_MAX else scores.at(
-            np.linspace(0, scores.n_frames - 1, SAMPLE).astype(np.int64))
+        values = scores.at(sampled(scores.n_frames))
         finite = values[np.isfinite(values)]
         return float((finite.max() - finite.mean()) / max(finite.std(), 1e-9)) if len(finite) > 1 else 0.0
 
