@@ -36,6 +36,7 @@ CostsUse = Literal["auto", "every", "looked-up"]
 LayoutUse = Literal["auto", "on", "off"]
 MotionSource = Literal["auto", "odometry", "visual"]
 Follow = Literal["auto", "distance", "frames"]
+WarmUp = Literal["sequence", "single"]
 
 
 @dataclass(frozen=True)
@@ -186,6 +187,17 @@ class SequenceConfig:
     distance_ratios: tuple[float, ...] = (0.8, 0.9, 1.0, 1.1, 1.25)
     """Following the distance travelled: metres along the map per metre travelled, each with both signs (the
     route driven the other way): 1 where both odometries agree, the others absorb their scale errors."""
+    direction_reliability: float = 0.65
+    """Where nothing ties the direction of travel to the heading (no declared camera, no motion): how often one
+    frame's vote (its best falling trajectory against its best rising one) points the right way; the answer
+    follows the direction found once it is ``heading.min_confidence`` probable (see lostx.core.route.direction)."""
+    direction_scale: float = 1.0
+    """Difference of the two directions' best mean costs (in the costs' standard deviations) that makes a full
+    vote; smaller differences vote in proportion."""
+    warm_up: WarmUp = "sequence"
+    """The answer while the window fills (``warming_up``, never ``localized``): ``sequence``, the best trajectory
+    over the frames so far (measured better than the single frame on every data set here but one, see
+    docs/metrics.md); ``single``, the frame's own single-frame answer."""
 
 
 def looks_up_costs(config: SequenceConfig, n_frames: int) -> bool:
@@ -284,6 +296,10 @@ class TrackerConfig:
     relocalise_after: int = 3
     """Consecutive implausible, confident and mutually consistent answers that restart the track
     (a genuine jump: a kidnapped vehicle, a gap in the map)."""
+    acquire_after: int = 5
+    """Consecutive mutually consistent answers that start a track without a confident one (a short map rarely
+    makes one confident); 0: only a confident answer starts a track. Such a track answers where the sequence
+    filter jumps, but trusts nothing by itself: ``localized`` still needs the confidence."""
     lost_after: int = 10
     """Consecutive implausible answers after which the track is dropped and must be acquired again."""
     position_sigma: float = 2.0
@@ -416,6 +432,7 @@ LIMITS: dict[str, dict[str, Bounds]] = {
         "costs_min_frames": _AT_LEAST_1,
         "radius": _AT_LEAST_0, "contrast_window": Bounds(2), "reference_prior": _AT_LEAST_0,
         "penalty": Bounds(), "exclusion": _AT_LEAST_0, "distance_window": _ABOVE_0, "distance_ratios": _ABOVE_0,
+        "direction_reliability": Bounds(0.5, 0.999), "direction_scale": _ABOVE_0,
     },
     "layout": {
         "cell": Bounds(0.1, 10), "length": Bounds(1, 200), "width": Bounds(1, 200), "centre": Bounds(0, 200),
@@ -428,7 +445,7 @@ LIMITS: dict[str, dict[str, Bounds]] = {
                 "min_confidence": Bounds(0.5, 1)},
     "decision": {"min_confidence": Bounds(0, 1), "calibration_frames": _AT_LEAST_1},
     "tracker": {
-        "gate_sigma": _ABOVE_0, "relocalise_after": _AT_LEAST_1, "lost_after": _AT_LEAST_1,
+        "gate_sigma": _ABOVE_0, "relocalise_after": _AT_LEAST_1, "acquire_after": _AT_LEAST_0, "lost_after": _AT_LEAST_1,
         "position_sigma": _ABOVE_0, "speed_sigma": _ABOVE_0, "acceleration_sigma": _ABOVE_0,
     },
     "stream": {

@@ -61,6 +61,7 @@ from .maps.refmap import ReferenceMap
 from .match.costs import EveryFrameCosts, LookedUpCosts
 from .match.matcher import FrameMatch, MatchResult, PlaceMatcher
 from .match.verify import verify
+from .route.direction import DirectionFilter
 from .route.heading import HeadingFilter
 from .route.sequence import SequenceFilter, signed
 from .route.tracker import RouteTracker
@@ -98,6 +99,8 @@ class Localizer:
         self._last_progress: float | None = None
         self.tracker = RouteTracker(self.config.tracker)
         self.heading = HeadingFilter(self.config.heading)
+        seq = self.config.sequence
+        self.direction = DirectionFilter(seq.direction_reliability, self.config.heading.switch, seq.direction_scale)
         self._last_timestamp: float | None = None
 
     def _sequence_filter(self, route: np.ndarray | None) -> SequenceFilter:
@@ -129,6 +132,7 @@ class Localizer:
         self._last_progress = None
         self.tracker.reset()
         self.heading.reset()
+        self.direction.reset()
         self._last_timestamp = None
 
     def step(self, frame: Frame) -> Estimate:
@@ -199,6 +203,9 @@ class Localizer:
         if direction:
             self.sequence.keep_direction(direction)
         seq = self.sequence.update(result.map_scores, result.candidates, result.nearest, speeds, progress)
+        along, along_sure = self.direction.update(*self.sequence.best_by_sign())
+        if not direction and along_sure >= self.config.heading.min_confidence:
+            seq = self.sequence.choose(along)
         runner_up = self.sequence.runner_up(seq.position, cfg.exclusion)
         margin = max(0.0, runner_up - seq.score) if np.isfinite(runner_up) else np.inf
         t1 = time.perf_counter()
@@ -217,6 +224,8 @@ class Localizer:
         latency["costs"] = 1e3 * (t_costs - t0)
         latency["sequence"] = 1e3 * (t1 - t_costs)
         latency["tracker"] = 1e3 * (t2 - t1)
+        if warming and self.config.sequence.warm_up == "single":
+            position = float(result.best)
         index = int(np.clip(np.rint(position), 0, self.map.n_frames - 1))
         estimate = self._estimate(frame, result, index, state, confidence, seq.score)
         estimate.margin = float(margin)

@@ -12,11 +12,11 @@ frame stands out from the rest of the map. Lower is better, like every single-fr
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
-from ..layout.compare import GridStack, similarity
+from ..layout.compare import GridStack, similarities
 from ..layout.grid import LayoutGrid
 from .scores import MapScores
 
@@ -28,46 +28,75 @@ REFINE = 64
 """The map frames most similar to a query as the grids lie that are compared again shifted sideways."""
 
 
-@dataclass
-class LayoutScores:
-    """One frame's layout similarity with any map frame, computed when asked (higher is better)."""
+class LayoutComparison:
+    """One frame's layout grid against the map's under both headings (as it lies, and turned 180 degrees),
+    every heading, turn and sideways shift compared in one pass over the map's grids when first asked."""
 
-    query: LayoutGrid
-    """The frame's grid under one heading (turned 180 degrees for ``opposite``)."""
-    maps: GridStack
-    weights: np.ndarray
-    shifts: int
-    min_cells: int
-    turns: tuple[float, ...] = (0.0,)
-    _every: np.ndarray | None = field(default=None, repr=False)
+    def __init__(self, grid: LayoutGrid, maps: GridStack, weights: np.ndarray, shifts: int, min_cells: int,
+                 turns: tuple[float, ...] = (0.0,)) -> None:
+        self.views = (grid, grid.turned())
+        self.maps, self.weights, self.shifts, self.min_cells, self.turns = maps, weights, shifts, min_cells, turns
+        self._every: np.ndarray | None = None
 
-    @property
-    def n_frames(self) -> int:
-        return self.maps.n
+    def heading(self, index: int) -> "LayoutScores":
+        """The scores under heading ``index`` (0: as the grid lies, 1: turned)."""
+        return LayoutScores(self, index)
 
     def every(self) -> np.ndarray:
+        """(2, N) both headings' similarity with every map frame."""
         if self._every is None:
             self._every = self._compare(self.maps)
         return self._every
 
     def at(self, refs: np.ndarray) -> np.ndarray:
-        refs = np.asarray(refs, dtype=np.int64)
+        """(2, len(refs)) both headings' similarity with the map frames ``refs``."""
         if self._every is not None or self.maps.n <= EVERY_FRAME_MAX:
-            return self.every()[refs]
+            return self.every()[:, refs]
         return self._compare(self.maps.rows(refs))
 
     def _compare(self, maps: GridStack) -> np.ndarray:
-        """Best over the query's turns and sideways shifts: every map grid as it lies, then the ``REFINE`` most
-        similar also shifted (a shift only ever finds a better fit, and only the best ones matter)."""
+        """Best over the turns and sideways shifts: every map grid as it lies, then each heading's ``REFINE``
+        most similar also shifted (a shift only ever finds a better fit, and only the best ones matter)."""
+        turns = len(self.turns)
+
         def compare(stack: GridStack, shifts: int) -> np.ndarray:
-            return np.max([similarity(self.query.rotated(angle), stack, self.weights, shifts, self.min_cells)
-                           for angle in self.turns], axis=0)
+            queries = [view.rotated(angle) for view in self.views for angle in self.turns]
+            scores = similarities(queries, stack, self.weights, shifts, self.min_cells)
+            return scores.reshape(len(self.views), turns, stack.n).max(axis=1)
 
         scores = compare(maps, 0)
         if self.shifts and maps.n:
-            best = np.argsort(-np.where(np.isfinite(scores), scores, -np.inf), kind="stable")[:REFINE]
-            scores[best] = np.maximum(scores[best], compare(maps.rows(best), self.shifts))
+            ranked = np.where(np.isfinite(scores), scores, -np.inf)
+            best = np.argsort(-ranked, axis=1, kind="stable")[:, :REFINE]  # (2, REFINE): each heading's own
+            union, where = np.unique(best, return_inverse=True)
+            refined = compare(maps.rows(union), self.shifts)
+            for h in range(len(self.views)):
+                scores[h, best[h]] = np.maximum(scores[h, best[h]], refined[h, where.reshape(best.shape)[h]])
         return scores
+
+
+@dataclass
+class LayoutScores:
+    """One frame's layout similarity with any map frame under one heading (higher is better)."""
+
+    comparison: LayoutComparison
+    index: int
+    """0: the grid as it lies (``same``); 1: turned 180 degrees (``opposite``)."""
+
+    @property
+    def query(self) -> LayoutGrid:
+        """The frame's grid under this heading."""
+        return self.comparison.views[self.index]
+
+    @property
+    def n_frames(self) -> int:
+        return self.comparison.maps.n
+
+    def every(self) -> np.ndarray:
+        return self.comparison.every()[self.index]
+
+    def at(self, refs: np.ndarray) -> np.ndarray:
+        return self.comparison.at(np.asarray(refs, dtype=np.int64))[self.index]
 
 
 def sampled(n_frames: int) -> np.ndarray:

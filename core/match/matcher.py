@@ -19,13 +19,13 @@ from ..describe.keypoints import KeypointEvidence
 from ..describe.lost import RunningStandardiser
 from ..describe.thumbnail import ThumbnailDescriber
 from ..errors import InputError, MapError
-from ..frame import Camera, Frame, Heading
+from ..frame import HEADINGS, Camera, Frame, Heading
 from ..images import check_frame
 from ..layout.classes import LayoutClasses
 from ..layout.describer import FramePlacer, LiveLayout
 from ..layout.grid import LayoutGrid
 from ..maps.refmap import ReferenceMap
-from .combined import EVERY_FRAME_MAX, CombinedScores, LayoutScores, layout_vote
+from .combined import EVERY_FRAME_MAX, CombinedScores, LayoutComparison, LayoutScores, layout_vote
 from .scores import MapScores
 from .search import CandidateSearch, QueryDistances
 from .verify import Correspondences, Verification, verify
@@ -426,12 +426,11 @@ class PlaceMatcher:
                      removed: slice | None) -> tuple[dict[str, MatchResult], float]:
         """Each heading's answer ranked by LoST-X and the layout combined, and the two cues' heading votes."""
         cfg = self.config
-        stack = self.map.layout_stack()
-        views = {"same": grid, "opposite": grid.turned()}
+        comparison = LayoutComparison(grid, self.map.layout_stack(), self._layout_weights, self._layout_shifts,
+                                      cfg.layout.min_cells, cfg.layout.turns)
         out = {}
         for heading, lost in answers.items():
-            layout = LayoutScores(views[heading], stack, self._layout_weights, self._layout_shifts,
-                                  cfg.layout.min_cells, cfg.layout.turns)
+            layout = comparison.heading(HEADINGS.index(heading))
             combined = without(CombinedScores(lost.map_scores, layout, cfg.layout.weight), removed)  # type: ignore[arg-type]
             n = self.map.n_frames
             pool = np.arange(n) if n <= EVERY_FRAME_MAX else np.union1d(lost.nearest, lost.candidates)  # type: ignore[arg-type]

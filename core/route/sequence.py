@@ -251,14 +251,30 @@ class SequenceFilter:
         inside = (along >= self.route[0] - 1e-9) & (along <= self.route[-1] + 1e-9)
         return np.where(inside, np.interp(along, self.route, np.arange(len(self.route))), np.nan)
 
-    def _best(self) -> SequenceResult:
+    def best_by_sign(self) -> tuple[float, float]:
+        """The best score among the live trajectories on the map with the reference index rising, and with it
+        falling (inf where there is none): the evidence for the direction of travel."""
+        scores = self.scores()
+        ends = self.positions()
+        on_map = np.isfinite(ends)
+        rising, falling = on_map & (self._speed > 0), on_map & (self._speed < 0)
+        return (float(scores[rising].min()) if rising.any() else np.inf,
+                float(scores[falling].min()) if falling.any() else np.inf)
+
+    def choose(self, sign: int) -> SequenceResult:
+        """The best trajectory whose reference index does not run against ``sign`` (+1 rising, -1 falling);
+        the others stay live (evidence for later frames). It becomes the answer the window picture follows."""
+        self._best_result = self._best(sign)
+        return self._best_result
+
+    def _best(self, sign: int = 0) -> SequenceResult:
         scores = self.scores()
         if len(scores) == 0:
             return SequenceResult(np.nan, np.nan, np.inf, len(self._times), np.full(len(self._times), np.nan))
         ends = self.positions()
-        # Lowest score among the trajectories still on the map; ties go to the slower trajectory, then the lower
-        # position, then the newer anchor, then a rising reference index.
-        scores = np.where(np.isfinite(ends), scores, np.inf)
+        # Lowest score among the trajectories still on the map (along ``sign``); ties go to the slower trajectory,
+        # then the lower position, then the newer anchor, then a rising reference index.
+        scores = np.where(np.isfinite(ends) & (self._speed * sign >= 0), scores, np.inf)
         if not np.isfinite(scores).any():
             return SequenceResult(np.nan, np.nan, np.inf, len(self._times), np.full(len(self._times), np.nan))
         tied = np.flatnonzero(scores == scores.min())

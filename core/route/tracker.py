@@ -8,7 +8,11 @@ that exactly, costs O(1) per frame whatever the map size, and gives the
 innovation's standard deviation that the gate needs. A Bayes filter over N
 places would cost O(N) per frame and repeat what the sequence search does.
 
-A track starts from a confident answer. The filter then gates the sequence
+A track starts from a confident answer, or from ``acquire_after`` answers in a
+row that move together as one vehicle would (a short map seldom makes an answer
+confident; such a track holds the answer through a bad frame but trusts nothing
+by itself, and narrows the speeds the sequence filter searches only once a
+confident answer has confirmed it). The filter then gates the sequence
 answers: one within ``gate_sigma`` standard deviations of the prediction is
 accepted; one further away is an implausible jump and is not trusted. (Also
 trusting weak answers that agree with the track raised recall on Nordland but
@@ -50,7 +54,10 @@ class RouteTracker:
     def reset(self) -> None:
         self.kf: KalmanFilter | None = None
         self.misses = 0
+        self.confirmed = False
+        """The track has had a confident answer (started from one, or accepted one since)."""
         self._rejected: deque[tuple[float, float]] = deque(maxlen=max(1, self.config.relocalise_after))
+        self._untracked: deque[tuple[float, float]] = deque(maxlen=max(1, self.config.acquire_after))
 
     @property
     def tracking(self) -> bool:
@@ -68,10 +75,12 @@ class RouteTracker:
         self.kf = kf
         self.misses = 0
         self._rejected.clear()
+        self._untracked.clear()
 
     def speed_range(self) -> tuple[float, float] | None:
-        """Plausible speeds for the next frame's sequence search; None while not tracking."""
-        if self.kf is None or self.misses:
+        """Plausible speeds for the next frame's sequence search; None while not tracking, or while the track has
+        had no confident answer (the search then keeps every speed, free to leave a track acquired wrongly)."""
+        if self.kf is None or self.misses or not self.confirmed:
             return None
         v, sigma = float(self.kf.x[1, 0]), float(np.sqrt(self.kf.P[1, 1]))
         return v - 3.0 * sigma, v + 3.0 * sigma
@@ -79,9 +88,13 @@ class RouteTracker:
     def step(self, position: float, speed: float, confident: bool) -> TrackStep:
         """Feed one sequence answer; ``confident``: its margin reaches the localized threshold."""
         if self.kf is None:
-            if not confident:
+            self._untracked.append((position, speed))
+            acquired = self.config.acquire_after > 0 and _together(self._untracked, self.config.acquire_after,
+                                                                   self.config.position_sigma)
+            if not (confident or acquired):
                 return TrackStep(False, position, speed)
             self._start(position, speed)
+            self.confirmed = confident
             return TrackStep(True, position, speed, relocalised=True)
         kf = self.kf
         kf.predict()
@@ -89,6 +102,7 @@ class RouteTracker:
         innovation_sigma = float(np.sqrt((kf.H @ kf.P @ kf.H.T + kf.R)[0, 0]))
         if abs(position - predicted) <= self.config.gate_sigma * innovation_sigma:
             kf.update(np.array([[position]]))
+            self.confirmed = self.confirmed or confident
             self.misses = 0
             self._rejected.clear()
             return TrackStep(True, float(kf.x[0, 0]), float(kf.x[1, 0]))
@@ -99,6 +113,7 @@ class RouteTracker:
             self._rejected.clear()
         if self._consistent():
             self._start(position, speed)
+            self.confirmed = confident
             return TrackStep(True, position, speed, relocalised=True)
         if self.misses >= self.config.lost_after:
             self.reset()
@@ -106,9 +121,13 @@ class RouteTracker:
 
     def _consistent(self) -> bool:
         """The last ``relocalise_after`` rejected answers move together, as one vehicle would."""
-        if len(self._rejected) < self.config.relocalise_after:
-            return False
-        points = list(self._rejected)
-        return all(
-            abs((b[0] - a[0]) - b[1]) <= self.config.position_sigma * 2 for a, b in zip(points, points[1:])
-        )
+        return _together(self._rejected, self.config.relocalise_after, self.config.position_sigma)
+
+
+def _together(answers: deque[tuple[float, float]], count: int, position_sigma: float) -> bool:
+    """The last ``count`` (position, speed) answers move together: each advanced from the one before by its
+    speed, within two position sigmas."""
+    if len(answers) < count:
+        return False
+    points = list(answers)[-count:]
+    return all(abs((b[0] - a[0]) - b[1]) <= position_sigma * 2 for a, b in zip(points, points[1:]))
