@@ -89,7 +89,7 @@ class _Outgoing:
 
 def check_config(config: StreamConfig) -> None:
     for name in ("window", "queue", "max_message_bytes", "max_pixels", "frame_hwm", "result_hwm", "pending_results",
-                 "journal_segment_bytes", "max_streams"):
+                 "journal_segment_bytes", "max_streams", "max_streams_per_peer"):
         if getattr(config, name) < 1:
             raise StreamError(f"stream setting {name} must be at least 1, got {getattr(config, name)}")
     if config.wait_listeners < 0:
@@ -137,7 +137,8 @@ class LocalizerService:
         # Lossless never publishes answers into the void: it waits for at least one listener.
         self.min_listeners = max(self.config.wait_listeners, 1 if self.lossless else 0)
         self.counters = ServiceCounters()
-        self.streams = StreamTable(new_localizer, self.config.max_streams, self.config.stream_expiry)
+        self.streams = StreamTable(new_localizer, self.config.max_streams, self.config.stream_expiry,
+                                   self.config.max_streams_per_peer)
         self.journal: Journal | None = None
         self.endpoints: tuple[str, str] | None = None
         """The frames and results endpoints as bound."""
@@ -494,11 +495,15 @@ class LocalizerService:
             else:
                 self._waiting.add(identity)
             return
+        released = self.streams.released
         try:
-            state = self.streams.get(message.stream or "", now)
+            state = self.streams.get(message.stream or "", now, identity)
         except ProtocolError as exc:
             self._refuse(identity, exc.code, exc.text, message.id)
             return
+        if released == 0 and self.streams.released:  # then not again: a peer cannot flood the log
+            self.log(f"a producer holding {self.config.max_streams_per_peer} streams (max_streams_per_peer) started "
+                     f"stream {state.name!r}: its least recently used stream is forgotten")
         self.counters.received += 1
         state.counts.received += 1
         self.counters.missing += state.saw(message.id)

@@ -38,7 +38,7 @@ from lostx.stream.messages import ErrorMessage, Limits, Ready, Result
 from lostx.stream.replay import replay
 from lostx.stream.service import LocalizerService
 from lostx.stream.sockets import ClientKeys
-from lostx.stream.streams import AnsweredIds, check_time, localizer_factory
+from lostx.stream.streams import AnsweredIds, StreamTable, check_time, localizer_factory
 
 from streamtools import (  # noqa: F401  (fixtures)
     Collector, endpoints, free_port, link_frames, lostx_command, nordland_subset, procs, read_jsonl, thumb_map,
@@ -646,6 +646,71 @@ def test_streams_are_bounded_and_idle_ones_expire(thumb_map, nordland, tmp_path)
     assert answers == {"a": [(0, 1, 1), (2, 1, 1)], "b": [(0, 1, 1)], "c": [(1, 1, 1)]}
     assert sorted(stats.streams) == ["a", "c"] and len(made) == 4
     assert stats.errors_by_code == {"too_many_streams": 1}
+
+
+def test_a_flood_of_stream_ids_from_one_producer_leaves_room_for_a_new_robot(thumb_map, nordland, tmp_path):
+    winter = list(folder_traverse(nordland / "winter"))[:22]
+    frames, results = endpoints("ipc", tmp_path)
+    config = StreamConfig(frames=frames, results=results, mode="lossless", max_streams=4, max_streams_per_peer=2,
+                          stats_interval=0.1)
+    logged: list[str] = []
+    service = LocalizerService(localizer_factory(thumb_map, Config()), config, log=logged.append)
+    listener = Collector(results)
+    with service:
+        thread = threading.Thread(target=service.run, daemon=True)
+        thread.start()
+        flood, robot = FramePublisher(frames, stream="flood-0"), FramePublisher(frames, stream="robot")
+        try:
+            flood.wait_ready(30), robot.wait_ready(30)
+            # Twenty stream ids from one connection within the expiry: ten one at a time (each answered
+            # before the next), then ten at the window's pace.
+            for i, frame in enumerate(winter[:20]):
+                flood.stream = f"flood-{i}"
+                flood.send(frame, timeout=30)
+                if i < 10:
+                    assert flood.flush(30)
+            assert flood.flush(30)
+            for frame in winter[20:]:
+                robot.send(frame, timeout=30)
+            assert robot.flush(30)
+            answered = 20 + 2 - len(flood.errors)
+            wait_for(lambda: listener.stats and listener.stats[-1].seq == answered, 10, "the answers and the stats")
+            stats = listener.stats[-1]
+        finally:
+            flood.close()
+            robot.close()
+            service.stop("test over")
+            thread.join(30)
+            listener.stop()
+    assert list(robot.errors) == []
+    robot_answers = [(r.frame_id, r.tag.stream_seq) for r in listener.results if r.tag.stream == "robot"]
+    assert robot_answers == [(20, 1), (21, 2)]
+    # One at a time, each new stream took the place of the producer's oldest: all ten answered. At the
+    # window's pace its streams had frames in service when the next came: some were refused, on their own.
+    flood_answered = sorted(r.frame_id for r in listener.results if r.tag.stream.startswith("flood"))
+    assert flood_answered[:10] == list(range(10))
+    assert {e.code for e in flood.errors} <= {"too_many_streams"}
+    assert all("max_streams_per_peer" in e.text for e in flood.errors)
+    assert len(flood_answered) + len(flood.errors) == 20
+    assert len([name for name in stats.streams if name.startswith("flood")]) == 2 and "robot" in stats.streams
+    assert sum("max_streams_per_peer" in line for line in logged) == 1
+
+
+def test_one_peer_holds_at_most_its_share_of_the_stream_slots():
+    table = StreamTable(lambda: None, max_streams=4, expiry=300.0, max_per_peer=2)  # type: ignore[arg-type]
+    a, b = b"peer-a", b"peer-b"
+    table.get("a0", 0.0, a), table.get("a1", 1.0, a), table.get("a2", 2.0, a)
+    assert [s.name for s in table] == ["a1", "a2"] and table.released == 1
+    for state in table:
+        state.in_service = 1  # frames of both wait for the localizer: neither can be given up
+    with pytest.raises(ProtocolError, match="2 streams one producer may hold") as info:
+        table.get("a3", 3.0, a)
+    assert info.value.code == "too_many_streams"
+    table.get("b0", 3.0, b), table.get("b1", 3.0, b)
+    assert [s.name for s in table] == ["a1", "a2", "b0", "b1"]
+    # A producer that reconnects (a new routing id) takes its stream along.
+    table.get("a1", 4.0, b"peer-a-again")
+    assert [s.name for s in table.held_by(a)] == ["a2"]
 
 
 def test_a_live_listener_that_falls_behind_counts_what_it_missed(thumb_map, nordland, tmp_path):
