@@ -819,6 +819,36 @@ def test_bad_stream_settings_are_one_line_errors(thumb_map, tmp_path, capsys):
         taken.close()
 
 
+def test_listen_timeout_counts_answers_not_the_stats_heartbeats(thumb_map, procs, tmp_path):
+    frames, results = endpoints("ipc", tmp_path)
+    config = StreamConfig(frames=frames, results=results, stats_interval=0.1)
+    service = LocalizerService(localizer_factory(thumb_map, Config()), config, log=lambda text: None)
+    with service:
+        thread = threading.Thread(target=service.run, daemon=True)
+        thread.start()
+        try:
+            # Stats arrive ten times a second and no frame comes: the listener ends after 2 s without an answer.
+            listen = procs.start("listen", lostx_command("listen", results, "--timeout", "2"))
+            code = listen.wait(60)
+        finally:
+            service.stop("test over")
+            thread.join(30)
+    log = procs.log("listen")
+    assert code == 0, log
+    assert "0 results; service: received 0, answered 0" in log and "lostx: error" not in log
+
+
+def test_listen_timeout_with_nothing_behind_the_port_says_no_service_answered(tmp_path, capsys):
+    from lostx.cli import main
+
+    endpoint = f"tcp://127.0.0.1:{free_port()}"
+    out = tmp_path / "answers.jsonl"
+    assert main(["listen", endpoint, "--timeout", "0.5", "--jsonl", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err == f"listening to {endpoint}\nlostx: error: no service answered at {endpoint} within 0.5 s\n"
+    assert out.read_text() == ""
+
+
 def test_resuming_reads_the_last_answer_of_the_file_and_drops_a_line_cut_short(tmp_path):
     from lostx.commands.listen import resume_point
 
