@@ -596,6 +596,50 @@ def _fetch_history(endpoint: str) -> tuple[messages.History, ErrorMessage]:
     return reply, refusal  # type: ignore[return-value]
 
 
+def test_a_producer_hears_its_own_version_journal_history_and_the_stream_of_each_ack(thumb_map, nordland,
+                                                                                     tmp_path):
+    frame = folder_traverse(nordland / "winter").frame(0)
+    frames, results = endpoints("ipc", tmp_path)
+    config = StreamConfig(frames=frames, results=results, mode="lossless", journal=tmp_path / "journal")
+    service = LocalizerService(localizer_factory(thumb_map, Config()), config, log=lambda text: None)
+
+    def as_version(payload: bytes, version: int) -> bytes:
+        return msgpack.packb({**msgpack.unpackb(payload), "v": version})
+
+    context = zmq.Context()
+    listener, producer = context.socket(zmq.SUB), context.socket(zmq.DEALER)
+    listener.setsockopt(zmq.SUBSCRIBE, b"result")
+    with service:
+        listener.connect(results)
+        producer.connect(frames)
+        thread = threading.Thread(target=service.run, daemon=True)
+        thread.start()
+        replies = []
+        try:
+            wait_for(lambda: service._listeners() == 1, 10, "the listener's subscription")
+            # One socket, two streams, the same frame id in each: only the stream tells the acks apart.
+            for payload in (as_version(wire.encode_hello("a"), 3), wire.encode_hello("a"),
+                            wire.encode_frame(frame, stream="a"), wire.encode_frame(frame, stream="b"),
+                            as_version(wire.encode_frame(frame, stream="c"), 3)):
+                producer.send(payload)
+                assert producer.poll(30_000)
+                replies.append(msgpack.unpackb(producer.recv()))
+        finally:
+            service.stop("test over")
+            thread.join(30)
+            listener.close(linger=0)
+            producer.close(linger=0)
+            context.term()
+    journal = service.journal.id  # type: ignore[union-attr]
+    old_ready = {"type": "ready", "session": service.session, "mode": "lossless", "window": 4,
+                 "max_message_bytes": config.max_message_bytes, "max_pixels": config.max_pixels}
+    assert replies[0] == {"v": 3, **old_ready}
+    assert replies[1] == {"v": 4, **old_ready, "journal": journal, "history": f"{results}-history"}
+    assert replies[2:] == [{"v": 4, "type": "ack", "session": service.session, "frame_id": 0, "stream": "a"},
+                           {"v": 4, "type": "ack", "session": service.session, "frame_id": 0, "stream": "b"},
+                           {"v": 3, "type": "ack", "session": service.session, "frame_id": 0}]
+
+
 def test_streams_are_bounded_and_idle_ones_expire(thumb_map, nordland, tmp_path):
     winter = list(folder_traverse(nordland / "winter"))[:3]
     frames, results = endpoints("ipc", tmp_path)
