@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 import struct
 import tracemalloc
 
@@ -485,10 +486,12 @@ def test_the_bytes_in_the_protocol_doc_are_what_lostx_reads():
 
     doc = (Path(__file__).resolve().parents[1] / "docs" / "protocol.md").read_text()
     blocks = re.findall(r"```\n(\{.*?\})\n((?:[0-9a-f]{2}[ \n])+)```", doc, re.S)
-    assert len(blocks) >= 4
+    assert len(blocks) >= 6
     for text, hex_bytes in blocks:
         message = msgpack.unpackb(bytes.fromhex(hex_bytes.replace("\n", " ")))
         assert message["v"] in messages.VERSIONS
+        if "<" not in text:  # no placeholder for bytes: the text is the message, value for value
+            assert json.loads(text) == message, text
         keys = set(message) | {k for value in message.values() if isinstance(value, dict) for k in value}
         for key in re.findall(r'"(\w+)":', text):
             assert key in keys, (key, text)
