@@ -114,10 +114,10 @@ class StreamTable:
     """The live streams, bounded in number, in all and per peer; idle ones expire."""
 
     def __init__(self, new_localizer: Callable[[], Localizer], max_streams: int, expiry: float,
-                 max_per_peer: int | None = None) -> None:
+                 max_per_peer: int) -> None:
         self.new_localizer = new_localizer
         self.max_streams = max_streams
-        self.max_per_peer = max_streams if max_per_peer is None else max_per_peer
+        self.max_per_peer = max_per_peer
         self.expiry = expiry
         self.created = 0
         self.expired = 0

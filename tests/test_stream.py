@@ -1001,6 +1001,32 @@ class FakeService(threading.Thread):
         self.context.term()
 
 
+def test_a_producer_told_its_version_is_too_new_says_so_at_once(tmp_path):
+    """A service older than version 4 refuses a version-4 hello as it refuses any version it does not speak."""
+    context = zmq.Context()
+    old = context.socket(zmq.ROUTER)
+    old.bind(f"ipc://{tmp_path}/old")
+    refusal = wire.encode_error(ErrorMessage("bad_version", "schema version 4 is not supported (this peer speaks "
+                                                            "2 and 3)", None, "old"))
+
+    def answer() -> None:
+        if old.poll(10_000):
+            identity, _ = old.recv_multipart()
+            old.send_multipart([identity, refusal])
+
+    thread = threading.Thread(target=answer, daemon=True)
+    thread.start()
+    try:
+        with FramePublisher(f"ipc://{tmp_path}/old") as publisher:
+            with pytest.raises(StreamError, match=r"is older than this producer: it refused protocol version 4 "
+                                                  r"\(schema version 4 is not supported .*\); upgrade the service"):
+                publisher.wait_ready(30)
+    finally:
+        thread.join(15)
+        old.close(linger=0)
+        context.term()
+
+
 def _replay_into_fake(source, tmp_path: Path, name: str, **kwargs) -> list[messages.FrameMessage]:
     fake = FakeService(f"ipc://{tmp_path}/{name}")
     try:
