@@ -705,7 +705,8 @@ def test_a_flood_of_stream_ids_from_one_producer_leaves_room_for_a_new_robot(thu
         thread.start()
         flood, robot = FramePublisher(frames, stream="flood-0"), FramePublisher(frames, stream="robot")
         try:
-            flood.wait_ready(30), robot.wait_ready(30)
+            flood.wait_ready(30)
+            robot.wait_ready(30)
             # Twenty stream ids from one connection within the expiry: ten one at a time (each answered
             # before the next), then ten at the window's pace.
             for i, frame in enumerate(winter[:20]):
@@ -743,14 +744,16 @@ def test_a_flood_of_stream_ids_from_one_producer_leaves_room_for_a_new_robot(thu
 def test_one_peer_holds_at_most_its_share_of_the_stream_slots():
     table = StreamTable(lambda: None, max_streams=4, expiry=300.0, max_per_peer=2)  # type: ignore[arg-type]
     a, b = b"peer-a", b"peer-b"
-    table.get("a0", 0.0, a), table.get("a1", 1.0, a), table.get("a2", 2.0, a)
+    for t, name in enumerate(("a0", "a1", "a2")):
+        table.get(name, float(t), a)
     assert [s.name for s in table] == ["a1", "a2"] and table.released == 1
     for state in table:
         state.in_service = 1  # frames of both wait for the localizer: neither can be given up
     with pytest.raises(ProtocolError, match="2 streams one producer may hold") as info:
         table.get("a3", 3.0, a)
     assert info.value.code == "too_many_streams"
-    table.get("b0", 3.0, b), table.get("b1", 3.0, b)
+    for name in ("b0", "b1"):
+        table.get(name, 3.0, b)
     assert [s.name for s in table] == ["a1", "a2", "b0", "b1"]
     # A producer that reconnects (a new routing id) takes its stream along.
     table.get("a1", 4.0, b"peer-a-again")
