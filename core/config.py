@@ -360,6 +360,9 @@ class StreamConfig:
     survives a crash of the service but not of the machine."""
     max_streams: int = 64
     """Streams with a state (a localizer each) at one time; a frame of one more is refused."""
+    max_streams_per_peer: int = 8
+    """Streams one producer (one connection) may hold, so that one cannot take every slot; a producer
+    at its limit that starts another stream gives up its least recently used idle one."""
     stream_expiry: float = 300.0
     """Seconds without a frame after which a stream's state is forgotten (its next frame starts afresh)."""
     max_time_jump: float = 3600.0
@@ -453,7 +456,7 @@ LIMITS: dict[str, dict[str, Bounds]] = {
         "max_pixels": _AT_LEAST_1, "frame_hwm": _AT_LEAST_0, "result_hwm": _AT_LEAST_0,
         "pending_results": _AT_LEAST_1, "stats_interval": _ABOVE_0, "linger": _AT_LEAST_0,
         "journal_segment_bytes": _AT_LEAST_1, "journal_max_bytes": _AT_LEAST_1, "max_streams": Bounds(1, 256),
-        "stream_expiry": _ABOVE_0, "max_time_jump": _ABOVE_0,
+        "max_streams_per_peer": Bounds(1, 256), "stream_expiry": _ABOVE_0, "max_time_jump": _ABOVE_0,
     },
 }
 """Valid values of every numeric setting, by section and key (docs/config.md lists them)."""

@@ -17,11 +17,16 @@ from lostx.core.geometry import CameraGeometry
 from .errors import ProtocolError
 from .images import decode_image
 
-VERSION = 3
-"""Schema version carried in every message lostx sends (``v``)."""
-VERSIONS: tuple[int, ...] = (2, 3)
+VERSION = 4
+"""Newest schema version (``v``): what lostx's producers send (``hello``, ``frame``), and what the service's
+replies to such a producer say (``ready`` with ``journal`` and ``history``, ``ack`` with ``stream``)."""
+VERSIONS: tuple[int, ...] = (2, 3, 4)
 """Schema versions a receiver reads; it refuses any other. Version 3 adds a frame's ``odometry`` and
 ``geometry``; a version-2 frame that carries them is refused (``unknown_field``), as version 2 always did."""
+STEADY_VERSION = 3
+"""The version of every message version 4 left as it was (errors, the results and history channels) and of
+the replies to a producer that speaks 2 or 3: lostx sends these as version 3, so peers written for it read
+them unchanged."""
 
 TOPICS: tuple[bytes, ...] = (b"result", b"error", b"stats")
 """First part of every message on the results channel."""
@@ -74,6 +79,8 @@ class Hello:
 
     stream: str | None = None
     name: str | None = None
+    version: int = VERSION
+    """The schema version the producer spoke; its ``ready`` is given in it."""
 
 
 @dataclass
@@ -94,6 +101,8 @@ class FrameMessage:
     """The vehicle's pose (x, y metres, yaw radians) in the producer's odometry frame (version 3)."""
     geometry: CameraGeometry | None = None
     """The camera's intrinsics and mounting, checked when the message was read (version 3)."""
+    version: int = VERSION
+    """The schema version the producer spoke; its ``ack`` is given in it."""
 
     def to_frame(self) -> Frame:
         """Decode the image (its size was checked when the message was read)."""
@@ -119,14 +128,20 @@ class Ready:
     window: int
     max_message_bytes: int
     max_pixels: int
+    journal: str | None = None
+    """The id of the service's journal; None without one (version 4)."""
+    history: str | None = None
+    """The history endpoint as the service bound it; None without a journal (version 4)."""
 
 
 @dataclass(frozen=True)
 class Ack:
-    """Service -> producer (lossless): ``frame_id`` is answered; one more frame may be sent."""
+    """Service -> producer (lossless): ``frame_id`` of ``stream`` is answered; one more frame may be sent."""
 
     session: str
     frame_id: int
+    stream: str | None = None
+    """The frame's stream (``""`` for a frame that named none); None in a version-3 ack, which lacks it."""
 
 
 @dataclass(frozen=True)

@@ -28,7 +28,7 @@ from lostx.core.frame import Frame
 
 from . import wire
 from .errors import ProtocolError, StreamError
-from .messages import Ack, ErrorMessage, Limits, Ready, Reply
+from .messages import VERSION, Ack, ErrorMessage, Limits, Ready, Reply
 from .sockets import ClientKeys, connect
 
 HELLO_RETRY_S = 0.5
@@ -76,6 +76,7 @@ class FramePublisher:
         self.counts = PublisherCounts()
         self.errors: deque[ErrorMessage] = deque(maxlen=100)
         self.ready: Ready | None = None
+        self._outdated: str | None = None  # why a service refused this producer's schema version
         self._pending: OrderedDict[int, tuple[bytes, float | None]] = OrderedDict()  # id -> (payload, sent at)
         self._last_hello = 0.0
         self._connections = 0
@@ -115,6 +116,9 @@ class FramePublisher:
             if time.monotonic() - self._last_hello >= HELLO_RETRY_S:
                 self._hello()
             self._read_replies(50)
+            if self._outdated is not None:
+                raise StreamError(f"the service at {self.endpoint} is older than this producer: it refused "
+                                  f"protocol version {VERSION} ({self._outdated}); upgrade the service")
             if deadline is not None and time.monotonic() > deadline:
                 raise StreamError(f"no service answered at {self.endpoint} within {timeout:.0f} s")
         return self.ready
@@ -250,6 +254,8 @@ class FramePublisher:
         else:
             self.counts.refused += 1
             self.errors.append(reply)
+            if reply.code == "bad_version" and reply.frame_id is None:
+                self._outdated = reply.text
             if reply.frame_id is not None:
                 self._pending.pop(reply.frame_id, None)  # an error is that frame's answer
 

@@ -89,7 +89,7 @@ class _Outgoing:
 
 def check_config(config: StreamConfig) -> None:
     for name in ("window", "queue", "max_message_bytes", "max_pixels", "frame_hwm", "result_hwm", "pending_results",
-                 "journal_segment_bytes", "max_streams"):
+                 "journal_segment_bytes", "max_streams", "max_streams_per_peer"):
         if getattr(config, name) < 1:
             raise StreamError(f"stream setting {name} must be at least 1, got {getattr(config, name)}")
     if config.wait_listeners < 0:
@@ -137,7 +137,8 @@ class LocalizerService:
         # Lossless never publishes answers into the void: it waits for at least one listener.
         self.min_listeners = max(self.config.wait_listeners, 1 if self.lossless else 0)
         self.counters = ServiceCounters()
-        self.streams = StreamTable(new_localizer, self.config.max_streams, self.config.stream_expiry)
+        self.streams = StreamTable(new_localizer, self.config.max_streams, self.config.stream_expiry,
+                                   self.config.max_streams_per_peer)
         self.journal: Journal | None = None
         self.endpoints: tuple[str, str] | None = None
         """The frames and results endpoints as bound."""
@@ -163,7 +164,7 @@ class LocalizerService:
         self._durable = 0  # with a journal: the newest answer made durable
         self._subscriptions: Counter[bytes] = Counter()
         self._producers: dict[bytes, float] = {}
-        self._waiting: set[bytes] = set()  # producers owed a ready
+        self._waiting: dict[bytes, int] = {}  # producers owed a ready, and the schema version each spoke
         self._next_seq = 1
         self._published_seq = 0
         self._last_answered: int | None = None
@@ -324,8 +325,8 @@ class LocalizerService:
         if events.get(self._results, 0) & zmq.POLLIN:
             self._read_subscriptions()
         if self._waiting and self._listeners() >= self.min_listeners:
-            for identity in self._waiting:
-                self._reply(identity, wire.encode_ready(self._ready()))
+            for identity, version in self._waiting.items():
+                self._reply(identity, wire.encode_ready(self._ready(), version))
             self._waiting.clear()
         if dispatch:
             self._dispatch()
@@ -368,7 +369,7 @@ class LocalizerService:
         job.stream.counts.duplicates += 1
         job.stream.in_service -= 1
         if ack_again:
-            self._reply(job.identity, wire.encode_ack(Ack(self.session, job.message.id)))
+            self._reply(job.identity, self._ack(job))
 
     def _admit_time(self, job: Job) -> bool:
         """Check the frame's timestamp against its stream's; a refused frame is answered with the error."""
@@ -419,7 +420,7 @@ class LocalizerService:
             state.counts.answered += 1
             self.counters.step_ms.add(answer.estimate.latency_ms.get("total", 0.0))
             topic, payload = b"result", wire.encode_result(answer.estimate.summary(), self.session, tag)
-            reply = wire.encode_ack(Ack(self.session, job.message.id)) if self.lossless else None
+            reply = self._ack(job) if self.lossless else None
         else:
             # A frame that was accepted but cannot be answered: its answer is this error, in order.
             # The sender hears of it in both modes; in lossless mode it also returns the credit.
@@ -490,15 +491,19 @@ class LocalizerService:
             return
         if isinstance(message, Hello):
             if self._listeners() >= self.min_listeners:
-                self._reply(identity, wire.encode_ready(self._ready()))
+                self._reply(identity, wire.encode_ready(self._ready(), message.version))
             else:
-                self._waiting.add(identity)
+                self._waiting[identity] = message.version
             return
+        released = self.streams.released
         try:
-            state = self.streams.get(message.stream or "", now)
+            state = self.streams.get(message.stream or "", now, identity)
         except ProtocolError as exc:
             self._refuse(identity, exc.code, exc.text, message.id)
             return
+        if released == 0 and self.streams.released:  # then not again: a peer cannot flood the log
+            self.log(f"a producer holding {self.config.max_streams_per_peer} streams (max_streams_per_peer) started "
+                     f"stream {state.name!r}: its least recently used stream is forgotten")
         self.counters.received += 1
         state.counts.received += 1
         self.counters.missing += state.saw(message.id)
@@ -510,7 +515,12 @@ class LocalizerService:
 
     def _ready(self) -> Ready:
         window = self.config.window if self.lossless else 0
-        return Ready(self.session, self.config.mode, window, self.config.max_message_bytes, self.config.max_pixels)
+        return Ready(self.session, self.config.mode, window, self.config.max_message_bytes, self.config.max_pixels,
+                     self.journal.id if self.journal is not None else None, self.history_endpoint)
+
+    def _ack(self, job: Job) -> bytes:
+        """The frame's acknowledgement, in the schema version its producer spoke."""
+        return wire.encode_ack(Ack(self.session, job.message.id, job.message.stream or ""), job.message.version)
 
     def _read_subscriptions(self) -> None:
         assert self._results is not None

@@ -6,8 +6,10 @@ window, tracker, running normalisation), so frames of different streams may
 interleave freely; all of them read the same memory-mapped reference map and
 share one backbone. A stream's state is created by its first frame, forgotten
 after ``stream_expiry`` seconds without a frame, and at most ``max_streams``
-exist at once. The service's I/O loop owns the table; the worker only steps
-the localizer a job carries.
+exist at once, at most ``max_streams_per_peer`` of them held by one peer (one
+connection to the frames socket), so that one peer cannot take every slot.
+The service's I/O loop owns the table; the worker only steps the localizer a
+job carries.
 """
 
 from __future__ import annotations
@@ -89,6 +91,8 @@ class StreamState:
     """Answers given so far (the last answer's ``stream_seq``)."""
     in_service: int = 0
     """Frames taken and not yet answered; a stream with any never expires."""
+    peer: bytes = b""
+    """The routing id of the connection that sent the stream's last frame: the peer holding its slot."""
 
     def saw(self, frame_id: int) -> int:
         """Count a frame id; returns how many ids were skipped since the highest one seen."""
@@ -107,20 +111,37 @@ class StreamState:
 
 
 class StreamTable:
-    """The live streams, bounded in number; idle ones expire."""
+    """The live streams, bounded in number, in all and per peer; idle ones expire."""
 
-    def __init__(self, new_localizer: Callable[[], Localizer], max_streams: int, expiry: float) -> None:
+    def __init__(self, new_localizer: Callable[[], Localizer], max_streams: int, expiry: float,
+                 max_per_peer: int) -> None:
         self.new_localizer = new_localizer
         self.max_streams = max_streams
+        self.max_per_peer = max_per_peer
         self.expiry = expiry
         self.created = 0
         self.expired = 0
+        self.released = 0
+        """Streams forgotten to make room for a newer stream of the same peer."""
         self._states: dict[str, StreamState] = {}
 
-    def get(self, name: str, now: float) -> StreamState:
-        """The stream's state, made on its first frame; ``too_many_streams`` when none is free."""
+    def get(self, name: str, now: float, peer: bytes = b"") -> StreamState:
+        """The stream's state, made on its first frame; ``too_many_streams`` when none is free.
+
+        A peer holding ``max_per_peer`` streams that starts another gives up its own least recently
+        used stream with no frame in service (a producer moving on to a new stream, a replay's next
+        lap); when all of them have frames in service the new one is refused, whatever else is free."""
         state = self._states.get(name)
         if state is None:
+            held = self.held_by(peer)
+            if len(held) >= self.max_per_peer:
+                idle = [s for s in held if s.in_service == 0]
+                if not idle:
+                    raise ProtocolError("too_many_streams", f"stream {name!r} would be one more than the "
+                                        f"{self.max_per_peer} streams one producer may hold (max_streams_per_peer), "
+                                        f"and each of its streams has a frame in service")
+                del self._states[min(idle, key=lambda s: s.last_seen).name]
+                self.released += 1
             if len(self._states) >= self.max_streams:
                 self.expire(now)
             if len(self._states) >= self.max_streams:
@@ -131,7 +152,12 @@ class StreamTable:
             self._states[name] = state
             self.created += 1
         state.last_seen = now
+        state.peer = peer
         return state
+
+    def held_by(self, peer: bytes) -> list[StreamState]:
+        """The streams whose last frame came from ``peer``."""
+        return [s for s in self._states.values() if s.peer == peer]
 
     def expire(self, now: float) -> list[str]:
         """Forget the streams idle for longer than the expiry time (never one with frames in service)."""

@@ -90,8 +90,8 @@ _FRAME: Schema = {
     "metadata": (_MAP, False),
 }
 _FRAME_V3: Schema = {**_FRAME, "odometry": (_ARRAY.or_nil(), False), "geometry": (_MAP.or_nil(), False)}
-FRAME_SCHEMAS: dict[int, Schema] = {2: _FRAME, 3: _FRAME_V3}
-"""The frame's fields by schema version: version 3 adds ``odometry`` and ``geometry``."""
+FRAME_SCHEMAS: dict[int, Schema] = {2: _FRAME, 3: _FRAME_V3, 4: _FRAME_V3}
+"""The frame's fields by schema version: version 3 adds ``odometry`` and ``geometry``; 4 changes replies only."""
 GEOMETRY_REQUIRED = ("fx", "fy", "cx", "cy", "width", "height")
 GEOMETRY_FIELDS = (*GEOMETRY_REQUIRED, "x", "y", "z", "yaw", "pitch", "roll", "body")
 """A frame's ``geometry``: the keys of a camera file (docs/datasets.md)."""
@@ -99,7 +99,9 @@ READY: Schema = {
     "v": (_INT, True), "type": (_STR, True), "session": (_STR, True), "mode": (_STR, True),
     "window": (_UINT, True), "max_message_bytes": (_UINT, True), "max_pixels": (_UINT, True),
 }
+READY_V4: Schema = {**READY, "journal": (_STR.or_nil(), True), "history": (_STR.or_nil(), True)}
 ACK: Schema = {"v": (_INT, True), "type": (_STR, True), "session": (_STR, True), "frame_id": (_UINT, True)}
+ACK_V4: Schema = {**ACK, "stream": (_STR, True)}
 _TAG: Schema = {"stream": (_STR, True), "seq": (_UINT, True), "stream_seq": (_UINT, True), "journal": (_STR, False)}
 _ERROR: Schema = {
     "v": (_INT, True), "type": (_STR, True), "frame_id": (_UINT.or_nil(), True),
@@ -178,7 +180,7 @@ def _short_str(f: Fields, name: str, default: str | None = None) -> str | None:
 
 def read_hello(message: Mapping[str, Any]) -> Hello:
     f = Fields(message, _HELLO)
-    return Hello(stream=_short_str(f, "stream"), name=_short_str(f, "name"))
+    return Hello(stream=_short_str(f, "stream"), name=_short_str(f, "name"), version=f.value("v"))
 
 
 def read_frame(message: Mapping[str, Any], limits: Limits) -> FrameMessage:
@@ -226,7 +228,7 @@ def read_frame(message: Mapping[str, Any], limits: Limits) -> FrameMessage:
         id=int(f.value("id")), camera=camera, encoding=encoding, image=image, shape=shape,
         timestamp=None if timestamp is None else float(timestamp), position=position,
         name=_short_str(f, "name", "") or "", stream=_short_str(f, "stream"), metadata=metadata,
-        odometry=_odometry(f.value("odometry")), geometry=_geometry(f.value("geometry")),
+        odometry=_odometry(f.value("odometry")), geometry=_geometry(f.value("geometry")), version=f.value("v"),
     )
 
 

@@ -9,7 +9,8 @@ Three channels, all bound by the service:
 * history (ROUTER at the service, DEALER at a listener; with a journal): ``fetch``
   in, ``history`` (journaled answers) or ``error`` back.
 
-Every payload is one msgpack map with ``v`` (schema version: lostx sends 3, reads 2 and 3) and ``type``.
+Every payload is one msgpack map with ``v`` (schema version: lostx's producers send 4, everything else
+lostx sends says 3 as it is unchanged; it reads 2, 3 and 4) and ``type``.
 Decoding never trusts the peer: the size is checked before msgpack sees the
 bytes, msgpack's own length limits stop a hostile length field from
 allocating memory, and every field is checked (:mod:`lostx.stream.validate`);
@@ -30,17 +31,23 @@ from lostx.core.frame import Frame
 from .errors import ProtocolError
 from .images import encode_image
 from .messages import (
-    MAX_FETCH, TOPICS, VERSION, Ack, Answer, ErrorMessage, Fetch, FrameMessage, Hello, History, Limits, Published,
+    MAX_FETCH, STEADY_VERSION, TOPICS, VERSION, Ack, Answer, ErrorMessage, Fetch, FrameMessage, Hello, History, Limits, Published,
     Ready, Reply, Stats, Tag,
 )
 from .validate import (
-    ACK, FETCH, HISTORY, READY, Fields, envelope, is_uint, kind_of, read_error, read_frame, read_hello, read_result,
+    ACK, ACK_V4, FETCH, HISTORY, READY, READY_V4, Fields, envelope, is_uint, kind_of, read_error, read_frame, read_hello, read_result,
     read_stats, short,
 )
 
 
-def _pack(message: dict[str, Any]) -> bytes:
-    return msgpack.packb({"v": VERSION, **message}, use_bin_type=True)
+def _pack(message: dict[str, Any], version: int = STEADY_VERSION) -> bytes:
+    return msgpack.packb({"v": version, **message}, use_bin_type=True)
+
+
+def reply_version(request_version: int) -> int:
+    """The version of the service's reply to a request in ``request_version``: a producer that speaks
+    version 4 gets version 4, an older one version 3 (what it has always read)."""
+    return VERSION if request_version >= VERSION else STEADY_VERSION
 
 
 def encode_hello(stream: str | None = None, name: str | None = None) -> bytes:
@@ -49,7 +56,7 @@ def encode_hello(stream: str | None = None, name: str | None = None) -> bytes:
         message["stream"] = stream
     if name is not None:
         message["name"] = name
-    return _pack(message)
+    return _pack(message, VERSION)
 
 
 def encode_frame(frame: Frame, encoding: str = "raw", quality: int = 90, stream: str | None = None) -> bytes:
@@ -83,15 +90,23 @@ def encode_frame(frame: Frame, encoding: str = "raw", quality: int = 90, stream:
     if frame.geometry is not None:
         message["geometry"] = {key: value if isinstance(value, int) else float(value)
                                for key, value in frame.geometry.to_dict().items()}
-    return _pack(message)
+    return _pack(message, VERSION)
 
 
-def encode_ready(ready: Ready) -> bytes:
-    return _pack({"type": "ready", **asdict(ready)})
+def encode_ready(ready: Ready, version: int = VERSION) -> bytes:
+    """``ready`` for a producer that spoke ``version``: its ``journal`` and ``history`` from version 4 on."""
+    message = {"type": "ready", **asdict(ready)}
+    if version < VERSION:
+        del message["journal"], message["history"]
+    return _pack(message, reply_version(version))
 
 
-def encode_ack(ack: Ack) -> bytes:
-    return _pack({"type": "ack", **asdict(ack)})
+def encode_ack(ack: Ack, version: int = VERSION) -> bytes:
+    """``ack`` for a producer that spoke ``version``: with the frame's ``stream`` from version 4 on."""
+    message: dict[str, Any] = {"type": "ack", "session": ack.session, "frame_id": ack.frame_id}
+    if version >= VERSION:
+        message["stream"] = ack.stream or ""
+    return _pack(message, reply_version(version))
 
 
 def encode_error(error: ErrorMessage) -> bytes:
@@ -174,18 +189,21 @@ def decode_reply(data: bytes, limits: Limits) -> Reply:
     """A frames-channel message from the service, as a producer reads it."""
     message = unpack(data, limits)
     kind = envelope(message, ("ready", "ack", "error"))
+    # From version 4 on a producer ignores reply fields it does not know: the service may add some.
+    v4 = message["v"] >= VERSION
     if kind == "ready":
-        f = Fields(message, READY)
+        f = Fields(message, READY_V4 if v4 else READY, strict=not v4)
         mode = f.value("mode")
         if mode not in ("live", "lossless"):
             raise ProtocolError("bad_value", f"mode {mode!r} is not live or lossless")
         window = f.value("window")
         if window < 1 and mode == "lossless":
             raise ProtocolError("bad_value", f"window {window} must be at least 1")
-        return Ready(f.value("session"), mode, window, f.value("max_message_bytes"), f.value("max_pixels"))
+        return Ready(f.value("session"), mode, window, f.value("max_message_bytes"), f.value("max_pixels"),
+                     f.value("journal"), f.value("history"))
     if kind == "ack":
-        f = Fields(message, ACK)
-        return Ack(f.value("session"), f.value("frame_id"))
+        f = Fields(message, ACK_V4 if v4 else ACK, strict=not v4)
+        return Ack(f.value("session"), f.value("frame_id"), f.value("stream"))
     return read_error(message)
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 import struct
 import tracemalloc
 
@@ -67,7 +68,7 @@ def test_version_3_frames_carry_odometry_and_geometry(night_frame):
     frame = dataclasses.replace(night_frame, odometry=(12.5, -3.0, 0.25), geometry=camera)
     data = wire.encode_frame(frame, "jpeg", stream="run-1")
     fields = msgpack.unpackb(data)
-    assert fields["v"] == messages.VERSION == 3
+    assert fields["v"] == messages.VERSION == 4
     assert fields["odometry"] == [12.5, -3.0, 0.25] and fields["geometry"] == GEOMETRY
     message = wire.decode_request(data, LIMITS)
     assert message.odometry == (12.5, -3.0, 0.25) and message.geometry.to_dict() == GEOMETRY
@@ -92,7 +93,7 @@ def test_version_2_frames_are_still_read(night_frame):
     got = wire.decode_request(msgpack.packb(fields), LIMITS).to_frame()
     assert np.array_equal(got.image, night_frame.image) and got.odometry is None and got.geometry is None
     hello = msgpack.packb({"v": 2, "type": "hello", "stream": "old"})
-    assert wire.decode_request(hello, LIMITS) == Hello("old", None)
+    assert wire.decode_request(hello, LIMITS) == Hello("old", None, version=2)
     # And the other way round: what a version-2 service sends a version-3 producer and listener.
     assert wire.decode_reply(msgpack.packb({"v": 2, "type": "ack", "session": "s", "frame_id": 3}), LIMITS) == \
         Ack("s", 3)
@@ -131,10 +132,37 @@ def test_grey_raw_images_become_three_channels():
 def test_replies_round_trip():
     ready = Ready("abcd", "lossless", 4, 1000, 2000)
     assert wire.decode_reply(wire.encode_ready(ready), LIMITS) == ready
-    assert wire.decode_reply(wire.encode_ack(Ack("abcd", 17)), LIMITS) == Ack("abcd", 17)
+    assert wire.decode_reply(wire.encode_ack(Ack("abcd", 17, "cam")), LIMITS) == Ack("abcd", 17, "cam")
     error = ErrorMessage("bad_type", "field 'id' ...", 17, "abcd")
     assert wire.decode_reply(wire.encode_error(error), LIMITS) == error
     assert wire.decode_request(wire.encode_hello("s", "cam"), LIMITS) == Hello("s", "cam")
+
+
+def test_replies_speak_the_producers_version_and_version_4_tells_journal_history_and_stream():
+    ready = Ready("abcd", "lossless", 4, 1000, 2000, "j-1", "tcp://127.0.0.1:5557")
+    common = {"type": "ready", "session": "abcd", "mode": "lossless", "window": 4, "max_message_bytes": 1000,
+              "max_pixels": 2000}
+    assert msgpack.unpackb(wire.encode_ready(ready, 4)) == \
+        {"v": 4, **common, "journal": "j-1", "history": "tcp://127.0.0.1:5557"}
+    assert wire.decode_reply(wire.encode_ready(ready, 4), LIMITS) == ready
+    ack = Ack("abcd", 7, "cam-1")
+    assert msgpack.unpackb(wire.encode_ack(ack, 4)) == {"v": 4, "type": "ack", "session": "abcd", "frame_id": 7,
+                                                        "stream": "cam-1"}
+    assert wire.decode_reply(wire.encode_ack(ack, 4), LIMITS) == ack
+    # A producer that spoke version 2 or 3 gets what version 3 sent, field for field (it refuses unknown ones).
+    for old in (2, 3):
+        assert msgpack.unpackb(wire.encode_ready(ready, old)) == {"v": 3, **common}
+        assert msgpack.unpackb(wire.encode_ack(ack, old)) == {"v": 3, "type": "ack", "session": "abcd", "frame_id": 7}
+        assert wire.decode_reply(wire.encode_ack(ack, old), LIMITS) == Ack("abcd", 7)
+    # From version 4 on a producer ignores reply fields it does not know, and checks those it does.
+    later = msgpack.packb({**msgpack.unpackb(wire.encode_ack(ack, 4)), "added_later": [1]})
+    assert wire.decode_reply(later, LIMITS) == ack
+    with pytest.raises(ProtocolError) as info:
+        wire.decode_reply(msgpack.packb({"v": 4, "type": "ack", "session": "abcd", "frame_id": 7}), LIMITS)
+    assert info.value.code == "missing_field"
+    # Everything version 4 left as it was still says 3, so listeners written for version 3 read it.
+    assert msgpack.unpackb(wire.encode_error(ErrorMessage("bad_type", "x", 7, "abcd")))["v"] == 3
+    assert msgpack.unpackb(wire.encode_fetch(Fetch(120, 256)))["v"] == 3
 
 
 def test_result_carries_every_summary_field():
@@ -239,7 +267,7 @@ def test_listener_side_tolerates_new_fields_but_checks_known_ones():
     "change, code",
     [
         ({"v": 1}, "bad_version"),  # the previous version is refused, not misread
-        ({"v": 4}, "bad_version"),
+        ({"v": 5}, "bad_version"),
         ({"v": 0}, "bad_version"),
         ({"v": "2"}, "bad_version"),
         ({"v": None}, "bad_version"),
@@ -458,13 +486,15 @@ def test_the_bytes_in_the_protocol_doc_are_what_lostx_reads():
 
     doc = (Path(__file__).resolve().parents[1] / "docs" / "protocol.md").read_text()
     blocks = re.findall(r"```\n(\{.*?\})\n((?:[0-9a-f]{2}[ \n])+)```", doc, re.S)
-    assert len(blocks) >= 4
+    assert len(blocks) >= 6
     for text, hex_bytes in blocks:
         message = msgpack.unpackb(bytes.fromhex(hex_bytes.replace("\n", " ")))
-        assert message["v"] == messages.VERSION
+        assert message["v"] in messages.VERSIONS
+        if "<" not in text:  # no placeholder for bytes: the text is the message, value for value
+            assert json.loads(text) == message, text
         keys = set(message) | {k for value in message.values() if isinstance(value, dict) for k in value}
         for key in re.findall(r'"(\w+)":', text):
             assert key in keys, (key, text)
         decoded = {"hello": wire.decode_request, "frame": wire.decode_request, "ack": wire.decode_reply,
-                   "fetch": wire.decode_fetch}[message["type"]](bytes.fromhex(hex_bytes.replace("\n", " ")), LIMITS)
+                   "ready": wire.decode_reply, "fetch": wire.decode_fetch}[message["type"]](bytes.fromhex(hex_bytes.replace("\n", " ")), LIMITS)
         assert decoded is not None

@@ -38,7 +38,7 @@ from lostx.stream.messages import ErrorMessage, Limits, Ready, Result
 from lostx.stream.replay import replay
 from lostx.stream.service import LocalizerService
 from lostx.stream.sockets import ClientKeys
-from lostx.stream.streams import AnsweredIds, check_time, localizer_factory
+from lostx.stream.streams import AnsweredIds, StreamTable, check_time, localizer_factory
 
 from streamtools import (  # noqa: F401  (fixtures)
     Collector, endpoints, free_port, link_frames, lostx_command, nordland_subset, procs, read_jsonl, thumb_map,
@@ -596,6 +596,50 @@ def _fetch_history(endpoint: str) -> tuple[messages.History, ErrorMessage]:
     return reply, refusal  # type: ignore[return-value]
 
 
+def test_a_producer_hears_its_own_version_journal_history_and_the_stream_of_each_ack(thumb_map, nordland,
+                                                                                     tmp_path):
+    frame = folder_traverse(nordland / "winter").frame(0)
+    frames, results = endpoints("ipc", tmp_path)
+    config = StreamConfig(frames=frames, results=results, mode="lossless", journal=tmp_path / "journal")
+    service = LocalizerService(localizer_factory(thumb_map, Config()), config, log=lambda text: None)
+
+    def as_version(payload: bytes, version: int) -> bytes:
+        return msgpack.packb({**msgpack.unpackb(payload), "v": version})
+
+    context = zmq.Context()
+    listener, producer = context.socket(zmq.SUB), context.socket(zmq.DEALER)
+    listener.setsockopt(zmq.SUBSCRIBE, b"result")
+    with service:
+        listener.connect(results)
+        producer.connect(frames)
+        thread = threading.Thread(target=service.run, daemon=True)
+        thread.start()
+        replies = []
+        try:
+            wait_for(lambda: service._listeners() == 1, 10, "the listener's subscription")
+            # One socket, two streams, the same frame id in each: only the stream tells the acks apart.
+            for payload in (as_version(wire.encode_hello("a"), 3), wire.encode_hello("a"),
+                            wire.encode_frame(frame, stream="a"), wire.encode_frame(frame, stream="b"),
+                            as_version(wire.encode_frame(frame, stream="c"), 3)):
+                producer.send(payload)
+                assert producer.poll(30_000)
+                replies.append(msgpack.unpackb(producer.recv()))
+        finally:
+            service.stop("test over")
+            thread.join(30)
+            listener.close(linger=0)
+            producer.close(linger=0)
+            context.term()
+    journal = service.journal.id  # type: ignore[union-attr]
+    old_ready = {"type": "ready", "session": service.session, "mode": "lossless", "window": 4,
+                 "max_message_bytes": config.max_message_bytes, "max_pixels": config.max_pixels}
+    assert replies[0] == {"v": 3, **old_ready}
+    assert replies[1] == {"v": 4, **old_ready, "journal": journal, "history": f"{results}-history"}
+    assert replies[2:] == [{"v": 4, "type": "ack", "session": service.session, "frame_id": 0, "stream": "a"},
+                           {"v": 4, "type": "ack", "session": service.session, "frame_id": 0, "stream": "b"},
+                           {"v": 3, "type": "ack", "session": service.session, "frame_id": 0}]
+
+
 def test_streams_are_bounded_and_idle_ones_expire(thumb_map, nordland, tmp_path):
     winter = list(folder_traverse(nordland / "winter"))[:3]
     frames, results = endpoints("ipc", tmp_path)
@@ -646,6 +690,74 @@ def test_streams_are_bounded_and_idle_ones_expire(thumb_map, nordland, tmp_path)
     assert answers == {"a": [(0, 1, 1), (2, 1, 1)], "b": [(0, 1, 1)], "c": [(1, 1, 1)]}
     assert sorted(stats.streams) == ["a", "c"] and len(made) == 4
     assert stats.errors_by_code == {"too_many_streams": 1}
+
+
+def test_a_flood_of_stream_ids_from_one_producer_leaves_room_for_a_new_robot(thumb_map, nordland, tmp_path):
+    winter = list(folder_traverse(nordland / "winter"))[:22]
+    frames, results = endpoints("ipc", tmp_path)
+    config = StreamConfig(frames=frames, results=results, mode="lossless", max_streams=4, max_streams_per_peer=2,
+                          stats_interval=0.1)
+    logged: list[str] = []
+    service = LocalizerService(localizer_factory(thumb_map, Config()), config, log=logged.append)
+    listener = Collector(results)
+    with service:
+        thread = threading.Thread(target=service.run, daemon=True)
+        thread.start()
+        flood, robot = FramePublisher(frames, stream="flood-0"), FramePublisher(frames, stream="robot")
+        try:
+            flood.wait_ready(30)
+            robot.wait_ready(30)
+            # Twenty stream ids from one connection within the expiry: ten one at a time (each answered
+            # before the next), then ten at the window's pace.
+            for i, frame in enumerate(winter[:20]):
+                flood.stream = f"flood-{i}"
+                flood.send(frame, timeout=30)
+                if i < 10:
+                    assert flood.flush(30)
+            assert flood.flush(30)
+            for frame in winter[20:]:
+                robot.send(frame, timeout=30)
+            assert robot.flush(30)
+            answered = 20 + 2 - len(flood.errors)
+            wait_for(lambda: listener.stats and listener.stats[-1].seq == answered, 10, "the answers and the stats")
+            stats = listener.stats[-1]
+        finally:
+            flood.close()
+            robot.close()
+            service.stop("test over")
+            thread.join(30)
+            listener.stop()
+    assert list(robot.errors) == []
+    robot_answers = [(r.frame_id, r.tag.stream_seq) for r in listener.results if r.tag.stream == "robot"]
+    assert robot_answers == [(20, 1), (21, 2)]
+    # One at a time, each new stream took the place of the producer's oldest: all ten answered. At the
+    # window's pace its streams had frames in service when the next came: some were refused, on their own.
+    flood_answered = sorted(r.frame_id for r in listener.results if r.tag.stream.startswith("flood"))
+    assert flood_answered[:10] == list(range(10))
+    assert {e.code for e in flood.errors} <= {"too_many_streams"}
+    assert all("max_streams_per_peer" in e.text for e in flood.errors)
+    assert len(flood_answered) + len(flood.errors) == 20
+    assert len([name for name in stats.streams if name.startswith("flood")]) == 2 and "robot" in stats.streams
+    assert sum("max_streams_per_peer" in line for line in logged) == 1
+
+
+def test_one_peer_holds_at_most_its_share_of_the_stream_slots():
+    table = StreamTable(lambda: None, max_streams=4, expiry=300.0, max_per_peer=2)  # type: ignore[arg-type]
+    a, b = b"peer-a", b"peer-b"
+    for t, name in enumerate(("a0", "a1", "a2")):
+        table.get(name, float(t), a)
+    assert [s.name for s in table] == ["a1", "a2"] and table.released == 1
+    for state in table:
+        state.in_service = 1  # frames of both wait for the localizer: neither can be given up
+    with pytest.raises(ProtocolError, match="2 streams one producer may hold") as info:
+        table.get("a3", 3.0, a)
+    assert info.value.code == "too_many_streams"
+    for name in ("b0", "b1"):
+        table.get(name, 3.0, b)
+    assert [s.name for s in table] == ["a1", "a2", "b0", "b1"]
+    # A producer that reconnects (a new routing id) takes its stream along.
+    table.get("a1", 4.0, b"peer-a-again")
+    assert [s.name for s in table.held_by(a)] == ["a2"]
 
 
 def test_a_live_listener_that_falls_behind_counts_what_it_missed(thumb_map, nordland, tmp_path):
@@ -754,6 +866,36 @@ def test_bad_stream_settings_are_one_line_errors(thumb_map, tmp_path, capsys):
         taken.close()
 
 
+def test_listen_timeout_counts_answers_not_the_stats_heartbeats(thumb_map, procs, tmp_path):
+    frames, results = endpoints("ipc", tmp_path)
+    config = StreamConfig(frames=frames, results=results, stats_interval=0.1)
+    service = LocalizerService(localizer_factory(thumb_map, Config()), config, log=lambda text: None)
+    with service:
+        thread = threading.Thread(target=service.run, daemon=True)
+        thread.start()
+        try:
+            # Stats arrive ten times a second and no frame comes: the listener ends after 2 s without an answer.
+            listen = procs.start("listen", lostx_command("listen", results, "--timeout", "2"))
+            code = listen.wait(60)
+        finally:
+            service.stop("test over")
+            thread.join(30)
+    log = procs.log("listen")
+    assert code == 0, log
+    assert "0 results; service: received 0, answered 0" in log and "lostx: error" not in log
+
+
+def test_listen_timeout_with_nothing_behind_the_port_says_no_service_answered(tmp_path, capsys):
+    from lostx.cli import main
+
+    endpoint = f"tcp://127.0.0.1:{free_port()}"
+    out = tmp_path / "answers.jsonl"
+    assert main(["listen", endpoint, "--timeout", "0.5", "--jsonl", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err == f"listening to {endpoint}\nlostx: error: no service answered at {endpoint} within 0.5 s\n"
+    assert out.read_text() == ""
+
+
 def test_resuming_reads_the_last_answer_of_the_file_and_drops_a_line_cut_short(tmp_path):
     from lostx.commands.listen import resume_point
 
@@ -860,6 +1002,32 @@ class FakeService(threading.Thread):
                 self.socket.send_multipart([identity, wire.encode_ack(messages.Ack("fake", message.id))])
         self.socket.close(linger=0)
         self.context.term()
+
+
+def test_a_producer_told_its_version_is_too_new_says_so_at_once(tmp_path):
+    """A service older than version 4 refuses a version-4 hello as it refuses any version it does not speak."""
+    context = zmq.Context()
+    old = context.socket(zmq.ROUTER)
+    old.bind(f"ipc://{tmp_path}/old")
+    refusal = wire.encode_error(ErrorMessage("bad_version", "schema version 4 is not supported (this peer speaks "
+                                                            "2 and 3)", None, "old"))
+
+    def answer() -> None:
+        if old.poll(10_000):
+            identity, _ = old.recv_multipart()
+            old.send_multipart([identity, refusal])
+
+    thread = threading.Thread(target=answer, daemon=True)
+    thread.start()
+    try:
+        with FramePublisher(f"ipc://{tmp_path}/old") as publisher:
+            with pytest.raises(StreamError, match=r"is older than this producer: it refused protocol version 4 "
+                                                  r"\(schema version 4 is not supported .*\); upgrade the service"):
+                publisher.wait_ready(30)
+    finally:
+        thread.join(15)
+        old.close(linger=0)
+        context.term()
 
 
 def _replay_into_fake(source, tmp_path: Path, name: str, **kwargs) -> list[messages.FrameMessage]:

@@ -9,6 +9,7 @@ import argparse
 import json
 import os
 import sys
+import time
 from dataclasses import asdict
 from pathlib import Path
 from typing import IO, TYPE_CHECKING
@@ -31,7 +32,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                         help="write every message (result, error, stats) as a JSON line to FILE ('-': stdout)")
     parser.add_argument("--count", type=whole_number(1), metavar="N", help="exit after N results")
     parser.add_argument("--timeout", type=number(0, above=True), metavar="S",
-                        help="exit after S seconds without any message")
+                        help="exit after S seconds without an answer (the service's stats do not count); "
+                             "an error if nothing at all was heard from a service")
     parser.add_argument("--until-stopped", action="store_true",
                         help="exit when the service announces it is stopping (its final stats)")
     parser.add_argument("--quiet", action="store_true", help="no table (with --jsonl FILE)")
@@ -52,6 +54,7 @@ def run(args: argparse.Namespace) -> int:
     from lostx.core.errors import InputError
     from lostx.core.outputs import check_output_file
     from lostx.stream.client import Listener
+    from lostx.stream.errors import StreamError
     from lostx.stream.messages import ErrorMessage, Result
 
     keys = client_keys_from_args(args)
@@ -68,6 +71,7 @@ def run(args: argparse.Namespace) -> int:
     if args.jsonl is not None:
         out = sys.stdout if to_stdout else open(args.jsonl, "a", encoding="utf-8")
     n_results = rows = warming = seen = 0
+    heard = interrupted = False
     last_stats: Stats | None = None
     listener: Listener | None = None
     try:
@@ -75,12 +79,18 @@ def run(args: argparse.Namespace) -> int:
             if table:
                 resuming = f", resuming after answer {after}" if after is not None else ""
                 print(f"listening to {args.endpoint}{resuming}", file=sys.stderr)
+            quiet_until = None if args.timeout is None else time.monotonic() + args.timeout
             while args.count is None or n_results < args.count:
-                message = listener.receive(args.timeout)
+                wait = None if quiet_until is None else max(0.0, quiet_until - time.monotonic())
+                message = listener.receive(wait)
                 while listener.notices:
                     print(f"lostx listen: {listener.notices.popleft()}", file=sys.stderr)
                 if message is None:
                     break
+                heard = True
+                answer = isinstance(message, Result) or isinstance(message, ErrorMessage) and message.tag is not None
+                if quiet_until is not None and answer:
+                    quiet_until = time.monotonic() + args.timeout
                 if out is not None:
                     out.write(json.dumps(_plain(message)) + "\n")
                     out.flush()
@@ -105,10 +115,12 @@ def run(args: argparse.Namespace) -> int:
                     if message.final and args.until_stopped:
                         break
     except KeyboardInterrupt:
-        pass
+        interrupted = True
     finally:
         if out is not None and not to_stdout:
             out.close()
+    if not heard and args.timeout is not None and not interrupted:
+        raise StreamError(f"no service answered at {args.endpoint} within {args.timeout:g} s")
     line = f"{n_results} results"
     if listener is not None:
         line += summary(listener)
