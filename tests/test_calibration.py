@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 
 import numpy as np
 import pytest
@@ -139,6 +140,14 @@ def test_a_100_frame_map_is_localized_and_right(nordland, tmp_path):
     # Measured: 56 of the 100 answers localized, every one within a frame of the truth.
     assert len(localized) == 56
     assert all(abs(e.match_index - e.frame_id) <= 1 for e in localized)
+
+
+def test_a_calibration_stored_by_the_ranks_of_before_is_measured_again(tmp_path):
+    # What the margins' ranks stored: sorted margins under settings without the model's name.
+    old = settings_key(Config())
+    old.pop("model")
+    (tmp_path / CALIBRATION_FILE).write_text(json.dumps([{"settings": old, "sequence": [0.1], "single": [0.2]}]))
+    assert load(tmp_path, Config()) is None
 
 
 def test_a_damaged_calibration_file_is_measured_again(stretch_map):
