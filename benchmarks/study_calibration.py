@@ -15,6 +15,7 @@ import common  # noqa: F401  (first: it limits numpy's BLAS threads before numpy
 import argparse
 import dataclasses
 import tempfile
+from itertools import pairwise
 from pathlib import Path
 
 import numpy as np
@@ -94,7 +95,7 @@ def main() -> None:
                             *[f"{b[1]} ({b[2]}) / {b[0]}" for b in bins]])
     print_table(f"Totals by map length; reliability: right (within {NEAR} frames) / answers per confidence bin",
                 ["frames", "maps", "mode", "queries", "localized", "right", f"within {NEAR}", *[
-                    f"[{lo:g},{hi:g})" for lo, hi in zip(BINS[:-1], BINS[1:])]], summary)
+                    f"[{lo:g},{hi:g})" for lo, hi in pairwise(BINS)]], summary)
     write_json(args.out, {"tolerance_frames": TOLERANCE, "near_frames": NEAR, "bins": list(BINS), "maps": payload})
 
 
