@@ -260,8 +260,9 @@ class DecisionConfig:
     """When an answer is ``localized``: its confidence, calibrated on the map (see lostx.core.decide.calibration)."""
 
     min_confidence: float = 0.999
-    """An answer is ``localized`` when its confidence is at least this: when it looks surer than this
-    share of the wrong answers the map produces against itself (0.999: all but one in a thousand)."""
+    """An answer is ``localized`` when its confidence is at least this: when the wrong answers the map produces
+    against itself lead their runner-up by as much with a probability of at most 1 - this (0.999: one in a
+    thousand), as the fitted tail of their leads says."""
     calibration_frames: int = 2000
     """Map frames matched against the map (their neighbourhood excluded) to measure wrong answers;
     longer maps are sampled in stretches spread over the route."""

@@ -51,8 +51,9 @@ import numpy as np
 
 from .backbones import Backbone
 from .config import Config, HeadingConfig, TrackerConfig, looks_up_costs
-from .decide.calibration import UNCALIBRATED, Calibration, load, settings_key, store
+from .decide.calibration import PLACES, UNCALIBRATED, Calibration, load, settings_key, store
 from .decide.estimate import Candidate, Estimate, Evidence
+from .decide.tail import leads
 from .describe.inputcheck import InputCheck
 from .errors import InputError
 from .frame import Frame, Heading
@@ -335,7 +336,8 @@ def calibrate(refmap: ReferenceMap, config: Config, backbone: Backbone | None = 
               progress: Callable[[int], None] | None = None) -> Calibration:
     """The map's calibration for these settings (:mod:`lostx.core.decide.calibration`): up to
     ``decision.calibration_frames`` map frames matched against the map, neighbourhood excluded, through a
-    localizer of their own.
+    localizer of their own: of each, its single-frame margin and, once the sequence window is full, the leads among
+    its ``PLACES`` best (all wrong) places.
 
     Longer maps are sampled in stretches spread over the route (each stretch long enough to fill the
     sequence window several times), so that the sequence filter sees a traverse as it would live.
@@ -345,12 +347,14 @@ def calibrate(refmap: ReferenceMap, config: Config, backbone: Backbone | None = 
     quiet = dataclasses.replace(config, heading=HeadingConfig(declared_prior=1.0),
                                 tracker=TrackerConfig(enabled=False),
                                 sequence=dataclasses.replace(seq, enabled=True))
-    sequence_margins: list[float] = []
+    sequence_leads: list[np.ndarray] = []
     single: list[float] = []
+    frames = 0
     route = refmap.progress
     for stretch in _stretches(refmap.n_frames, config.decision.calibration_frames, 4 * seq.length):
         localizer = Localizer(refmap, quiet, backbone, calibration=UNCALIBRATED)
         for index in stretch:
+            frames += 1
             matches = localizer.matcher.match_reference(int(index), seq.exclusion)
             if matches is None:
                 continue
@@ -359,11 +363,20 @@ def calibrate(refmap: ReferenceMap, config: Config, backbone: Backbone | None = 
             frame = Frame(id=int(index), image=_NO_PIXELS, camera=refmap.camera)  # type: ignore[arg-type]
             estimate = localizer.update(frame, matches)
             single.append(matches.same.confidence)
-            if not estimate.warming_up and estimate.margin is not None and np.isfinite(estimate.margin):
-                sequence_margins.append(estimate.margin)
+            if not estimate.warming_up:
+                # Trajectories just outside the excluded neighbourhood run alongside the frame's own place and look
+                # alike: near misses of the true place, not wrong places, so they are left out.
+                ends = localizer.sequence.positions()
+                with np.errstate(invalid="ignore"):
+                    ends = np.where(np.abs(ends - index) > 2 * seq.exclusion, ends, np.nan)
+                sequence_leads.append(leads(localizer.sequence.scores(), ends, seq.exclusion, PLACES))
             if progress is not None:
                 progress(1)
-    return Calibration(np.sort(np.asarray(sequence_margins)), np.sort(np.asarray(single)), settings_key(config))
+    return Calibration(_joined(sequence_leads), np.asarray(single, dtype=np.float64), settings_key(config), frames)
+
+
+def _joined(parts: list[np.ndarray]) -> np.ndarray:
+    return np.concatenate(parts) if parts else np.zeros(0)
 
 
 def _stretches(n_frames: int, budget: int, length: int) -> list[np.ndarray]:

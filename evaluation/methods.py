@@ -87,6 +87,8 @@ class Run:
     reliability: list[list[ReliabilityBin]] = field(default_factory=list)
     """Binned confidence against measured precision, per tolerance."""
     true_heading: str | None = None
+    too_short: str | None = None
+    """Why no answer could be ``localized`` on this map (:meth:`Calibration.too_short`), or None."""
 
     def extras(self, k: int) -> dict[str, float | int]:
         """The deployed numbers and the heading accuracy, for the report entry of tolerance ``k``."""
@@ -266,6 +268,7 @@ def runs_of(method: str, matches: list[FrameMatch], refmap: ReferenceMap, query:
     for mode in modes:
         sequence = dataclasses.replace(config.sequence, enabled=mode == "sequence")
         localizer = Localizer(refmap, dataclasses.replace(config, sequence=sequence), backbone)
+        too_short = localizer.calibration.too_short(sequence.enabled, config.decision.min_confidence)
         estimates = []
         for i, frame_matches in enumerate(matches):
             # These stages read the frame's id, clock and camera, never its pixels.
@@ -276,7 +279,7 @@ def runs_of(method: str, matches: list[FrameMatch], refmap: ReferenceMap, query:
         out.append(Run(method, mode, np.array([e.match_index for e in estimates]),
                        np.array([e.confidence for e in estimates]), _candidate_lists(lists),
                        headings=np.array([e.heading for e in estimates]) if method in HEADING_METHODS else None,
-                       localized=np.array([e.state == "localized" for e in estimates])))
+                       localized=np.array([e.state == "localized" for e in estimates]), too_short=too_short))
     return out
 
 

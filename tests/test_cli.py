@@ -288,6 +288,28 @@ def test_the_summary_lists_only_the_stages_that_ran(robotcar, tmp_path):
     assert [s.split()[0] for s in stages.split(", ")] == ["descriptor", "search"]
 
 
+def test_the_summary_says_when_the_map_is_too_short_to_be_sure(robotcar, nordland, tmp_path):
+    short = tmp_path / "short"
+    assert lostx("map", "build", robotcar / "day", "--out", short, "--descriptor", "thumbnail",
+                 "--quiet").returncode == 0
+    proc = lostx("match", short, robotcar / "night", "--out", tmp_path / "m.csv", "--sequence", "--window", "3",
+                 "--quiet")
+    assert proc.returncode == 0, proc.stderr
+    assert ("0 localized, 2 not_localized while the 3-frame sequence window filled (the map is too short to be sure: "
+            "matched against itself, its 10 frames gave 0 samples of how far wrong answers lead, and a confidence "
+            "of 0.999 needs 99)") in proc.stdout
+    # 100 frames are enough: some answers are localized, and nothing is said.
+    for season in ("summer", "winter"):
+        (tmp_path / season).mkdir()
+        for path in sorted((nordland / season).iterdir())[993:1093]:
+            shutil.copy(path, tmp_path / season / path.name)
+    assert lostx("map", "build", tmp_path / "summer", "--out", tmp_path / "map", "--descriptor", "thumbnail",
+                 "--quiet").returncode == 0
+    proc = lostx("match", tmp_path / "map", tmp_path / "winter", "--out", tmp_path / "m.csv", "--sequence", "--quiet")
+    assert proc.returncode == 0, proc.stderr
+    assert "56 localized, 19 not_localized while the 20-frame sequence window filled; wrote" in proc.stdout
+
+
 def test_frames_unlike_the_maps_get_one_warning_line_each(cli_map, nordland, tmp_path):
     frames = tmp_path / "winter"
     frames.mkdir()

@@ -79,10 +79,10 @@ def test_localized_answers_are_right(runs):
         localized = [e for e in estimates if e.state == "localized"]
         wrong = [e for e in localized if abs(e.match_index - e.frame_id) > 1]
         assert wrong == []
-        # Measured: 2041 (sequence), 2069 (with the tracker) and 2037 (through the index, costs looked up)
-        # of 3576, never below the 56.5 % a fixed
-        # threshold tuned on this data reached.
-        assert len(localized) >= 0.565 * len(estimates)
+        # Measured: 2084 (sequence), 2121 (with the tracker) and 2194 (through the index, costs looked up) of
+        # 3576, never below the 2069 (57.9 %) that the margins' ranks among the map's wrong answers gave with the
+        # tracker, nor the 56.5 % of a fixed threshold tuned on this data.
+        assert len(localized) >= 2069
 
 
 def test_warm_up_is_reported(runs):
@@ -122,10 +122,9 @@ def test_leaving_the_map(gap_run):
     # Measured: not localized for all 200 frames of the stretch, no confident answer there at all.
     assert not localized[inside].any()
     assert max(e.confidence for e, i in zip(estimates, inside) if i) < Config().decision.min_confidence
-    # ... and localized again 16 frames after the stretch (the window is 20 frames long), correctly.
+    # ... and localized again 18 frames after the stretch (the window is 20 frames long), correctly.
     after = np.flatnonzero(~inside & (queries >= GAP[1]) & localized)
-    assert after[0] - np.flatnonzero(queries == GAP[1])[0] == 16
-    # Measured: every localized answer within one frame with costs for every map frame; with costs looked up,
-    # one of 443 two frames off (query 1344, before the stretch, confidence 0.9993).
+    assert after[0] - np.flatnonzero(queries == GAP[1])[0] == 18
+    # Measured: every localized answer exact, 392 of them with costs for every map frame, 375 looked up.
     errors = np.abs(pred - truth)[localized]
-    assert (errors > 1).sum() == (1 if looked_up else 0) and errors.max() <= (2 if looked_up else 1)
+    assert localized.sum() == (375 if looked_up else 392) and errors.max() == 0

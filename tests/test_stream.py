@@ -1159,6 +1159,9 @@ def test_demo_runs_the_whole_loop(demo_workdir, robotcar, tmp_path):
     assert int(answered.group(1)) == int(sequence.group(2)) == int(single.group(2)) == len(rows) == 10
     assert sum("warming up" in row for row in rows) == 2  # the 3-frame window fills on the third frame
     assert int(sequence.group(3)) == len(rows)  # every answer within one frame of the truth (measured)
+    assert int(sequence.group(5)) == 0  # and none localized: ten frames are too few to be sure, as it says
+    assert ("(the map is too short to be sure: matched against itself, its 10 frames gave 0 samples of how far "
+            "wrong answers lead, and a confidence of 0.999 needs 99)") in done.stdout
     assert "the authors' LoST-X on the same frames (single frame): 6/10 exact, 8/10 within one frame" in done.stdout
 
 

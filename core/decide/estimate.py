@@ -71,9 +71,10 @@ class Estimate:
     position: tuple[float, float] | None
     """Map position of ``match_index`` where the map has positions."""
     confidence: float
-    """In [0, 1]: the share of the wrong answers the map produces against itself that look less sure
-    than this one (an estimate of the probability that the answer is right). Thresholding it trades
-    precision against recall; see :mod:`lostx.core.decide.calibration`."""
+    """In [0, 1]: 1 - the probability that a wrong answer leads its runner-up by as much, from the tail of the
+    leads of the wrong answers the map produces against itself (a conservative estimate of the probability
+    that the answer is at the right place). Thresholding it trades precision against recall; see
+    :mod:`lostx.core.decide.calibration`."""
     score: float
     """The method's own score of the answer, lower is better (sequence cost, or the
     single-frame score without the sequence filter)."""

@@ -99,7 +99,7 @@ def run(args: argparse.Namespace) -> int:
             ProcessGroup(log_dir=tmp) as procs:
         notices = _ViewerNotices(procs)
         answers, final = _stream(args, refmap, night, Path(tmp), procs, notices)
-        _summary(answers, len(night), final)
+        _summary(answers, len(night), final, _too_short(refmap, config))
         if args.web:
             _keep_serving(procs, notices)
     return 0
@@ -229,7 +229,15 @@ def _mark(match: int, truth: int) -> str:
     return "exact" if match == truth else ("+-1" if abs(match - truth) == 1 else "wrong")
 
 
-def _summary(answers: dict[int, Result], n_frames: int, final: Stats | None) -> None:
+def _too_short(refmap: ReferenceMap, config: Config) -> str | None:
+    """Why the service's answers could not be ``localized`` on this map, from the calibration it stored beside it."""
+    from lostx.core.decide.calibration import load
+
+    calibration = load(refmap.path, config)
+    return None if calibration is None else calibration.too_short(True, config.decision.min_confidence)
+
+
+def _summary(answers: dict[int, Result], n_frames: int, final: Stats | None, too_short: str | None = None) -> None:
     import numpy as np
 
     truth = np.array(list(answers))
@@ -243,6 +251,8 @@ def _summary(answers: dict[int, Result], n_frames: int, final: Stats | None) -> 
     localized = sum(r.state == "localized" for r in answers.values())
     print(f"\nnight -> day (answered {n} of {n_frames}):")
     print(f"  sequence filter:  {counts(sequence)}; {localized} localized")
+    if too_short:
+        print(f"                    ({too_short})")
     print(f"  single frame:     {counts(single)}")
     print("  the authors' LoST-X on the same frames (single frame): 6/10 exact, 8/10 within one frame")
     if final is not None:

@@ -114,8 +114,19 @@ def run(args: argparse.Namespace) -> int:
     write_markdown(args.out / "report.md", entries, title, report_settings(args, config, pair, truths), figures,
                    reliability)
     print(markdown_table(entries))
+    for note in too_short_notes(runs):
+        print(note)
     print(f"wrote {args.out / 'report.md'}, report.json and {len(figures)} figures")
     return 0
+
+
+def too_short_notes(runs: list) -> list[str]:
+    """One line per map and mode on which no answer could be ``localized``, naming the runs, and why."""
+    by_reason: dict[str, list[str]] = {}
+    for r in runs:
+        if r.too_short:
+            by_reason.setdefault(r.too_short, []).append(r.label)
+    return [f"note: {', '.join(labels)}: {reason}" for reason, labels in by_reason.items()]
 
 
 def with_camera_files(pair: DatasetPair, reference: Path | None, query: Path | None) -> DatasetPair:

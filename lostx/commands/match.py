@@ -103,7 +103,9 @@ def run(args: argparse.Namespace) -> int:
                 raise type(exc)(f"{exc} ({answers.kept()})") from None
         elapsed = time.perf_counter() - start
         answers.complete = True
-        print(summary_line(estimates, elapsed, args.out, window if args.sequence else None), flush=True)
+        print(summary_line(estimates, elapsed, args.out, window if args.sequence else None,
+                           localizer.calibration.too_short(args.sequence, config.decision.min_confidence)),
+              flush=True)
         # The results are written: the web viewer may stay up as long as the user likes.
         serve_until_interrupted(sink)
     return 0
@@ -162,9 +164,11 @@ def csv_row(name: str, estimate: Estimate, refmap: ReferenceMap, sequence: bool)
     return row
 
 
-def summary_line(estimates: list[Estimate], elapsed: float, out: Path, window: int | None = None) -> str:
+def summary_line(estimates: list[Estimate], elapsed: float, out: Path, window: int | None = None,
+                 too_short: str | None = None) -> str:
     """One line: queries, time per frame and per stage (stages that ran), what was localized; ``window``
-    is the sequence window (None: single-frame answers)."""
+    is the sequence window (None: single-frame answers); ``too_short``: why the map lets no answer be
+    ``localized``, where it does not."""
     n = len(estimates)
     stages = {k: sum(e.latency_ms.get(k, 0.0) for e in estimates) / n for k in estimates[0].latency_ms}
     detail = ", ".join(f"{k} {v:.1f}" for k, v in stages.items() if k != "total" and v > 0)
@@ -173,5 +177,7 @@ def summary_line(estimates: list[Estimate], elapsed: float, out: Path, window: i
     warming = sum(bool(e.warming_up) for e in estimates)
     if window is not None and warming:
         states += f", {warming} not_localized while the {window}-frame sequence window filled"
+    if too_short:
+        states += f" ({too_short})"
     return (f"matched {n} queries in {elapsed:.1f} s ({1e3 * elapsed / n:.0f} ms per frame; {detail} ms); "
             f"{states}; wrote {out}")
