@@ -23,6 +23,7 @@ from typing import NoReturn  # noqa: E402
 
 from lostx import __version__  # noqa: E402
 from lostx.core.errors import LostxError  # noqa: E402
+from lostx.options import stop_signals_as_interrupt  # noqa: E402
 from lostx.stream.processes import exit_with_parent  # noqa: E402
 
 COMMANDS = ("demo", "map", "match", "eval", "serve", "replay", "listen", "keys", "backbones", "camera")
@@ -60,7 +61,9 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     warnings.showwarning = _show_warning
     try:
-        return int(args.run(args) or 0)
+        # SIGTERM and SIGHUP, like Ctrl-C, end a command through its cleanup: no child outlives it.
+        with stop_signals_as_interrupt():
+            return int(args.run(args) or 0)
     except LostxError as exc:
         return _fail(str(exc))
     except BrokenPipeError:

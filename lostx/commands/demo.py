@@ -23,7 +23,6 @@ from lostx.options import (
     add_viewer_options,
     config_from_args,
     number,
-    terminate_as_interrupt,
     viewer_args,
     window_length,
 )
@@ -94,9 +93,8 @@ def run(args: argparse.Namespace) -> int:
     workdir = check_output_folder(args.workdir or cache_dir() / "demo", "--workdir")
     refmap = demo_map(data / "day", workdir / f"robotcar-day-{config.backbone.name}", config, args.rebuild)
     night = folder_traverse(data / "night")
-    # SIGTERM ends the demo like Ctrl-C does, through the cleanup below.
-    with terminate_as_interrupt(), tempfile.TemporaryDirectory(prefix="lostx-demo-") as tmp, \
-            ProcessGroup(log_dir=tmp) as procs:
+    # Every stop signal ends the demo like Ctrl-C does, through the cleanup below (lostx.cli).
+    with tempfile.TemporaryDirectory(prefix="lostx-demo-") as tmp, ProcessGroup(log_dir=tmp) as procs:
         notices = _ViewerNotices(procs)
         answers, final = _stream(args, refmap, night, Path(tmp), procs, notices)
         _summary(answers, len(night), final)

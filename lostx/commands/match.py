@@ -19,7 +19,6 @@ from lostx.options import (
     print_notes,
     serve_until_interrupted,
     source_options_from_args,
-    terminate_as_interrupt,
 )
 
 if TYPE_CHECKING:
@@ -90,8 +89,8 @@ def run(args: argparse.Namespace) -> int:
     with live_view(args, refmap) as sink, AnswersFile(args.out, columns, len(queries)) as answers:
         start = time.perf_counter()
         estimates = []
-        with terminate_as_interrupt(), tqdm(queries, total=len(queries), desc="matching", unit="frame",
-                                            disable=args.quiet, leave=False) as bar:
+        with tqdm(queries, total=len(queries), desc="matching", unit="frame", disable=args.quiet,
+                  leave=False) as bar:
             try:
                 for frame in bar:
                     estimate = localizer.step(frame)
