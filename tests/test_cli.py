@@ -66,6 +66,27 @@ def test_positions_are_stored(robotcar, tmp_path):
     np.testing.assert_allclose(stored[0], [27.0, -9.0])  # the first image is the last CSV row
 
 
+def test_match_csv_gives_the_matched_position_where_the_map_has_positions(cli_map, robotcar, tmp_path):
+    names = sorted(os.listdir(robotcar / "day"))
+    positions = tmp_path / "pos.csv"
+    # Map coordinates as large as UTM northings, to the centimetre: written back as they were given.
+    positions.write_text("file,x,y\n" + "".join(f"{n},{500123.25 + 3.5 * i},{5735001.75 - i}\n"
+                                                for i, n in enumerate(names)))
+    located = tmp_path / "located"
+    proc = lostx("map", "build", robotcar / "day", "--out", located, "--positions", positions, "--quiet")
+    assert proc.returncode == 0, proc.stderr
+    for refmap, has_positions in ((located, True), (cli_map, False)):
+        out = tmp_path / f"{refmap.name}.csv"
+        proc = lostx("match", refmap, robotcar / "night", "--out", out, "--quiet")
+        assert proc.returncode == 0, proc.stderr
+        rows = list(csv.DictReader(out.open()))
+        assert len(rows) == 10
+        assert ({"x", "y"} <= set(rows[0])) == has_positions
+        for row in rows if has_positions else ():
+            i = int(row["match_index"])
+            assert (row["x"], row["y"]) == (str(500123.25 + 3.5 * i), str(5735001.75 - i))
+
+
 def test_unreadable_image_stops_the_build_and_leaves_nothing(robotcar, tmp_path):
     images = tmp_path / "images"
     images.mkdir()

@@ -29,6 +29,8 @@ COLUMNS = ["query_index", "query_file", "match_index", "match_file", "score", "c
            "distance", "correspondences"]
 SEQUENCE_COLUMNS = ["single_match_index", "state", "speed"]
 HEADING_COLUMNS = ["heading", "heading_confidence"]
+POSITION_COLUMNS = ["x", "y"]
+"""The map position of ``match_index``, where the map has positions."""
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -85,7 +87,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"note: the sequence window is {window} frames and {args.queries} has {len(queries)}: the window "
               f"never fills, so every answer is not_localized; pass --window {len(queries)} or less")
     localizer = Localizer(refmap, config)
-    columns = COLUMNS + (SEQUENCE_COLUMNS if args.sequence else []) + HEADING_COLUMNS
+    columns = (COLUMNS + (SEQUENCE_COLUMNS if args.sequence else []) + HEADING_COLUMNS
+               + (POSITION_COLUMNS if refmap.positions is not None else []))
     with live_view(args, refmap) as sink, AnswersFile(args.out, columns, len(queries)) as answers:
         start = time.perf_counter()
         estimates = []
@@ -154,6 +157,9 @@ def csv_row(name: str, estimate: Estimate, refmap: ReferenceMap, sequence: bool)
     }
     row["heading"] = estimate.heading
     row["heading_confidence"] = f"{estimate.heading_confidence:.4f}"
+    if estimate.position is not None:
+        # Exactly as the map holds them: map coordinates may be large (UTM) or fine (degrees).
+        row["x"], row["y"] = (float(v) for v in estimate.position)
     if sequence:
         row["single_match_index"] = estimate.single_match_index
         row["state"] = estimate.state
