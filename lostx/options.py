@@ -20,6 +20,7 @@ from lostx.core.config import LIMITS, Config, load_config
 DEFAULTS = Config()
 
 if TYPE_CHECKING:
+    from lostx.core.backbones.base import BackboneInfo
     from lostx.core.maps.refmap import ReferenceMap
     from lostx.viz.sink import RerunSink
 
@@ -143,6 +144,32 @@ def config_from_args(args: argparse.Namespace) -> Config:
         search = dataclasses.replace(search, index=args.index)
     return dataclasses.replace(config, backbone=backbone, lost=lost, verify=verify, search=search, sequence=sequence,
                                tracker=tracker)
+
+
+class IgnoredSettingWarning(UserWarning):
+    """A setting that does not act in this command (shown as one ``lostx: warning:`` line)."""
+
+
+def ignored_classes_note(args: argparse.Namespace, config: Config, refmap: ReferenceMap,
+                         info: BackboneInfo | None) -> str | None:
+    """Why the descriptor classes asked for (``--class-preset``, or ``[lost]`` of a --config file) are not used
+    against ``refmap``, whose backbone is described by ``info``: a map is matched with the classes it was built
+    with. None where none were asked for, or they are the map's own."""
+    lost = config.lost
+    built = refmap.manifest.get("classes")
+    if info is None or built is None or not (lost.classes or lost.class_preset):
+        return None
+    from lostx.core.describe.describer import descriptor_classes
+
+    asked = descriptor_classes(lost, info)
+    if {name: list(members) for name, members in asked.items()} == built:
+        return None
+    if getattr(args, "class_preset", None):
+        setting = f"--class-preset {args.class_preset}"
+    else:
+        setting = f"[lost] {'classes' if lost.classes else 'class_preset'} in {getattr(args, 'config', None)}"
+    return (f"{setting} is ignored: {refmap.path} was built with the classes {', '.join(built)}, and a map is "
+            f"matched with its own (build the map with these classes to use them)")
 
 
 SOURCE_FORMATS = ("folder", "robotcar", "bag", "video", "nuscenes")

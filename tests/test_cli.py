@@ -87,6 +87,21 @@ def test_match_csv_gives_the_matched_position_where_the_map_has_positions(cli_ma
             assert (row["x"], row["y"]) == (str(500123.25 + 3.5 * i), str(5735001.75 - i))
 
 
+def test_match_warns_once_that_classes_asked_for_are_not_the_maps(cli_map, robotcar, tmp_path):
+    config = tmp_path / "c.toml"
+    config.write_text('[lost]\nclasses = { road = ["road"], wall = ["wall"] }\n')
+    out = tmp_path / "m.csv"
+    proc = lostx("match", cli_map, robotcar / "night", "--out", out, "--quiet", "--config", config)
+    assert proc.returncode == 0, proc.stderr
+    assert len(list(csv.DictReader(out.open()))) == 10
+    assert proc.stderr.splitlines() == [
+        f"lostx: warning: [lost] classes in {config} is ignored: {cli_map} was built with the classes road, "
+        f"building, vegetation, and a map is matched with its own (build the map with these classes to use them)"]
+    # The map's own classes by name: nothing to warn about.
+    proc = lostx("match", cli_map, robotcar / "night", "--out", out, "--quiet", "--class-preset", "street")
+    assert proc.returncode == 0 and proc.stderr == ""
+
+
 def test_unreadable_image_stops_the_build_and_leaves_nothing(robotcar, tmp_path):
     images = tmp_path / "images"
     images.mkdir()

@@ -7,14 +7,17 @@ import csv
 import dataclasses
 import sys
 import time
+import warnings
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from lostx.options import (
+    IgnoredSettingWarning,
     add_config_options,
     add_source_options,
     add_viewer_options,
     config_from_args,
+    ignored_classes_note,
     live_view,
     print_notes,
     serve_until_interrupted,
@@ -87,6 +90,10 @@ def run(args: argparse.Namespace) -> int:
         print(f"note: the sequence window is {window} frames and {args.queries} has {len(queries)}: the window "
               f"never fills, so every answer is not_localized; pass --window {len(queries)} or less")
     localizer = Localizer(refmap, config)
+    backbone = getattr(localizer.matcher.describer, "backbone", None)  # a thumbnail map has none
+    ignored = ignored_classes_note(args, config, refmap, None if backbone is None else backbone.info)
+    if ignored is not None:
+        warnings.warn(ignored, IgnoredSettingWarning, stacklevel=1)
     columns = (COLUMNS + (SEQUENCE_COLUMNS if args.sequence else []) + HEADING_COLUMNS
                + (POSITION_COLUMNS if refmap.positions is not None else []))
     with live_view(args, refmap) as sink, AnswersFile(args.out, columns, len(queries)) as answers:
