@@ -314,6 +314,21 @@ def test_match_says_why_the_sequence_answers_are_not_localized(cli_map, robotcar
     assert states == {"not_localized"}
 
 
+def test_demo_says_why_a_window_longer_than_the_night_traverse_never_fills(robotcar, tmp_path):
+    from lostx.stream.processes import lostx_command
+
+    demo = subprocess.Popen(lostx_command("demo", "--window", "50", "--workdir", str(tmp_path / "demo"), "--data",
+                                          str(robotcar.parent)), stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
+                            text=True)
+    try:
+        first = demo.stdout.readline().rstrip("\n")  # said before the map is built: no need to wait for the rest
+    finally:
+        demo.terminate()
+        demo.wait(60)
+    assert first == (f"note: the sequence window is 50 frames and {robotcar / 'night'} has 10: the window never "
+                     f"fills, so every answer is not_localized; pass --window 10 or less")
+
+
 def test_the_summary_lists_only_the_stages_that_ran(robotcar, tmp_path):
     thumbnails = tmp_path / "thumbnails"
     assert lostx("map", "build", robotcar / "day", "--out", thumbnails, "--descriptor", "thumbnail",

@@ -16,7 +16,7 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from lostx.display import state_label
+from lostx.display import state_label, window_note
 from lostx.options import (
     VIEWER_NOTICE,
     add_backbone_options,
@@ -91,8 +91,11 @@ def run(args: argparse.Namespace) -> int:
     if not (data / "day").is_dir() or not (data / "night").is_dir():
         raise InputError(f"demo data not found: {data} should hold day/ and night/ (pass --data or set LOSTX_DATA)")
     workdir = check_output_folder(args.workdir or cache_dir() / "demo", "--workdir")
-    refmap = demo_map(data / "day", workdir / f"robotcar-day-{config.backbone.name}", config, args.rebuild)
     night = folder_traverse(data / "night")
+    note = window_note(args.window, len(night), data / "night")
+    if note is not None:
+        print(note, flush=True)
+    refmap = demo_map(data / "day", workdir / f"robotcar-day-{config.backbone.name}", config, args.rebuild)
     # Every stop signal ends the demo like Ctrl-C does, through the cleanup below (lostx.cli).
     with tempfile.TemporaryDirectory(prefix="lostx-demo-") as tmp, ProcessGroup(log_dir=tmp) as procs:
         notices = _ViewerNotices(procs)

@@ -11,6 +11,7 @@ import warnings
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from lostx.display import window_note
 from lostx.options import (
     IgnoredSettingWarning,
     add_config_options,
@@ -86,9 +87,9 @@ def run(args: argparse.Namespace) -> int:
         queries = queries.reversed()
     print_notes(queries.notes)
     window = config.sequence.length
-    if args.sequence and window > len(queries):
-        print(f"note: the sequence window is {window} frames and {args.queries} has {len(queries)}: the window "
-              f"never fills, so every answer is not_localized; pass --window {len(queries)} or less")
+    note = window_note(window, len(queries), args.queries) if args.sequence else None
+    if note is not None:
+        print(note)
     localizer = Localizer(refmap, config)
     backbone = getattr(localizer.matcher.describer, "backbone", None)  # a thumbnail map has none
     ignored = ignored_classes_note(args, config, refmap, None if backbone is None else backbone.info)
