@@ -119,6 +119,17 @@ def test_empty_folder(tmp_path):
     assert_one_line_error(lostx("map", "build", tmp_path / "empty", "--out", tmp_path / "m"), "no images in")
 
 
+def test_a_folder_of_folders_names_them_and_how_to_point_at_one(robotcar, tmp_path):
+    root = tmp_path / "traverses"
+    for name in ("autumn", "spring", "summer", "winter"):
+        (root / name).mkdir(parents=True)
+    shutil.copy(sorted((robotcar / "day").glob("*.png"))[0], root / "spring")
+    proc = lostx("map", "build", root, "--out", tmp_path / "m")
+    assert_one_line_error(proc, f"no images in {root}", "it holds folders (autumn, spring, summer and 1 more): "
+                          f"give one of them as the source, e.g. {root / 'spring'}")
+    assert proc.returncode == 2 and not (tmp_path / "m").exists()
+
+
 def test_missing_model(robotcar, tmp_path):
     proc = lostx("map", "build", robotcar / "day", "--out", tmp_path / "m", "--model", tmp_path / "nope.tflite")
     assert_one_line_error(proc, "nope.tflite", "not found", "--model")
