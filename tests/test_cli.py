@@ -130,6 +130,15 @@ def test_a_folder_of_folders_names_them_and_how_to_point_at_one(robotcar, tmp_pa
     assert proc.returncode == 2 and not (tmp_path / "m").exists()
 
 
+def test_a_config_that_is_a_folder_is_one_line(cli_map, robotcar, tmp_path):
+    folder = tmp_path / "empty"
+    folder.mkdir()
+    proc = lostx("match", cli_map, robotcar / "night", "--out", tmp_path / "m.csv", "--config", folder)
+    assert_one_line_error(proc, f"lostx: error: config file {folder} is a folder: give the TOML file of settings "
+                          f"in it (see docs/config.md)")
+    assert proc.returncode == 2 and not (tmp_path / "m.csv").exists()
+
+
 def test_missing_model(robotcar, tmp_path):
     proc = lostx("map", "build", robotcar / "day", "--out", tmp_path / "m", "--model", tmp_path / "nope.tflite")
     assert_one_line_error(proc, "nope.tflite", "not found", "--model")
