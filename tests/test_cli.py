@@ -151,6 +151,18 @@ def test_wrong_model_file(robotcar, tmp_path):
     assert_one_line_error(proc, "fake.tflite", "--model")
 
 
+@pytest.mark.parametrize("content", [b"hello\n", b"", os.urandom(3000)], ids=["text", "empty", "random"])
+def test_a_junk_pth_model_is_one_clean_line(robotcar, tmp_path, content):
+    junk = tmp_path / "junk.pth"
+    junk.write_bytes(content)
+    proc = lostx("map", "build", robotcar / "day", "--out", tmp_path / "m", "--backbone", "espnetv2-cityscapes",
+                 "--model", junk)
+    # Nothing of what PyTorch said (a pickle opcode, an errno, advice on torch.load): the file and what was expected.
+    assert_one_line_error(proc)
+    assert proc.stderr == (f"lostx: error: {junk} is not a PyTorch checkpoint ({len(content)} bytes: truncated, or "
+                           f"another kind of file); pass the ESPNetv2 Cityscapes weights with --model PATH\n")
+
+
 def test_truncated_map_file(cli_map, robotcar, tmp_path):
     broken = tmp_path / "broken"
     shutil.copytree(cli_map, broken)
