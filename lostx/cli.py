@@ -59,6 +59,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.command is None:
         parser.print_help()
         return 2
+    args.command_line = ["lostx", *(sys.argv[1:] if argv is None else argv)]
     warnings.showwarning = _show_warning
     try:
         # SIGTERM and SIGHUP, like Ctrl-C, end a command through its cleanup: no child outlives it.
@@ -74,9 +75,10 @@ def main(argv: list[str] | None = None) -> int:
     except OSError as exc:
         # A file the command had to write or read failed under it (disk full, permissions): say which.
         return _fail(f"{exc.strerror or exc}: {exc.filename}" if exc.filename else str(exc))
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:
         _close_progress_bars()
-        print("lostx: interrupted", file=sys.stderr)
+        # A command may say what it kept and how to go on (the exception's message).
+        print(f"lostx: interrupted{f': {exc}' if str(exc) else ''}", file=sys.stderr)
         return 130
 
 

@@ -139,6 +139,41 @@ def test_a_config_that_is_a_folder_is_one_line(cli_map, robotcar, tmp_path):
     assert proc.returncode == 2 and not (tmp_path / "m.csv").exists()
 
 
+def test_ctrl_c_in_map_build_says_what_was_kept_and_how_to_resume(nordland, tmp_path):
+    import signal
+    import threading
+    import time
+
+    out = tmp_path / "winter"
+    argv = ["map", "build", str(nordland / "winter"), "--out", str(out)]
+    proc = subprocess.Popen([sys.executable, "-m", "lostx.cli", *argv], stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, text=True)
+    seen: list[str] = []
+    reader = threading.Thread(target=lambda: seen.extend(iter(lambda: proc.stderr.read(1), "")), daemon=True)
+    reader.start()
+    try:
+        deadline = time.monotonic() + 240
+        # The progress bar has counted a few frames: 3576 are far from done.
+        while not re.search(r"\b([2-9]|\d\d+)/3576\b", "".join(seen)) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(60) == 130
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    reader.join(10)
+    last = "".join(seen).replace("\r", "\n").strip().splitlines()[-1]
+    found = re.fullmatch(r"lostx: interrupted: (\d+) of 3576 frames described are kept \(in (.+)\); to resume, run "
+                         r"the same command again: (.+)", last)
+    assert found, last
+    kept, checkpoint, command = int(found.group(1)), Path(found.group(2)), found.group(3)
+    assert 2 <= kept < 3576
+    assert checkpoint == tmp_path / ".winter.build"
+    chunks = sorted(checkpoint.glob("chunk-*.npz"))
+    assert sum(int(c.stem.split("-")[2]) - int(c.stem.split("-")[1]) for c in chunks) == kept
+    assert command == "lostx " + " ".join(argv)
+
+
 def test_missing_model(robotcar, tmp_path):
     proc = lostx("map", "build", robotcar / "day", "--out", tmp_path / "m", "--model", tmp_path / "nope.tflite")
     assert_one_line_error(proc, "nope.tflite", "not found", "--model")
