@@ -156,9 +156,10 @@ def test_match_connecting_to_no_viewer_says_so_in_one_line(day_map, robotcar, tm
     proc = lostx("match", day_map.path, robotcar / "night", "--out", out, "--quiet", "--connect", url)
     assert proc.returncode == 0, proc.stderr
     assert len(_rows(out)) == 10
-    assert proc.stderr.splitlines() == [f"lostx: live view: no Rerun viewer at {url} (nothing accepts connections on "
-                                        f"127.0.0.1:{url.split(':')[2].split('/')[0]}); going on without it (start "
-                                        f"the viewer first: `rerun`)"]
+    port = url.split(":")[2].split("/")[0]
+    assert proc.stderr.splitlines() == [(f"lostx: live view: no Rerun viewer at {url} (nothing accepts connections "
+                                         f"on 127.0.0.1:{port}); going on without it (start the viewer first: "
+                                         f"`rerun`)")]
 
 
 def test_match_connect_to_what_is_not_a_viewer_url_is_one_line(day_map, robotcar, tmp_path):

@@ -95,8 +95,8 @@ def test_match_warns_once_that_classes_asked_for_are_not_the_maps(cli_map, robot
     assert proc.returncode == 0, proc.stderr
     assert len(list(csv.DictReader(out.open()))) == 10
     assert proc.stderr.splitlines() == [
-        f"lostx: warning: [lost] classes in {config} is ignored: {cli_map} was built with the classes road, "
-        f"building, vegetation, and a map is matched with its own (build the map with these classes to use them)"]
+        (f"lostx: warning: [lost] classes in {config} is ignored: {cli_map} was built with the classes road, "
+         f"building, vegetation, and a map is matched with its own (build the map with these classes to use them)")]
     # The map's own classes by name: nothing to warn about.
     proc = lostx("match", cli_map, robotcar / "night", "--out", out, "--quiet", "--class-preset", "street")
     assert proc.returncode == 0 and proc.stderr == ""
@@ -123,7 +123,7 @@ def test_a_folder_of_folders_names_them_and_how_to_point_at_one(robotcar, tmp_pa
     root = tmp_path / "traverses"
     for name in ("autumn", "spring", "summer", "winter"):
         (root / name).mkdir(parents=True)
-    shutil.copy(sorted((robotcar / "day").glob("*.png"))[0], root / "spring")
+    shutil.copy(min((robotcar / "day").glob("*.png")), root / "spring")
     proc = lostx("map", "build", root, "--out", tmp_path / "m")
     assert_one_line_error(proc, f"no images in {root}", "it holds folders (autumn, spring, summer and 1 more): "
                           f"give one of them as the source, e.g. {root / 'spring'}")

@@ -12,6 +12,6 @@ import os
 # loads, which reads it once; a RUST_LOG of the user's own is kept.
 os.environ.setdefault("RUST_LOG", "warn,re_grpc_client=off,re_sdk::recording_stream=off")
 
-from .target import DEFAULT_CONNECT  # noqa: E402, DEFAULT_MEMORY_LIMIT, DEFAULT_WEB_ADDRESS, ViewerOutput
+from .target import DEFAULT_CONNECT, DEFAULT_MEMORY_LIMIT, DEFAULT_WEB_ADDRESS, ViewerOutput  # noqa: E402
 
 __all__ = ["DEFAULT_CONNECT", "DEFAULT_MEMORY_LIMIT", "DEFAULT_WEB_ADDRESS", "ViewerOutput"]
