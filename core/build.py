@@ -53,6 +53,16 @@ class BuildSummary:
         return self.bytes / max(self.n_frames, 1)
 
 
+class BuildInterrupted(KeyboardInterrupt):
+    """Ctrl-C (or another stop signal) stopped a build; what it kept for the same build to resume from."""
+
+    def __init__(self, kept: int, checkpoint: Path) -> None:
+        super().__init__(kept, checkpoint)
+        self.kept = kept
+        """Frames described and kept in the checkpoint (0: none, or a traverse that cannot be resumed)."""
+        self.checkpoint = checkpoint
+
+
 class FrameSource(Protocol):
     """A traverse that can be cut into ranges and identified (lostx.replay's traverses are)."""
 
@@ -291,6 +301,10 @@ def build_map(
                         writer.add(frame, index)
                         bar.update(1)
                     writer.flush()
+        except KeyboardInterrupt:
+            with contextlib.suppress(Exception):
+                writer.flush()  # what was described stays in the checkpoint
+            raise BuildInterrupted(writer.n_frames if checkpoint.key is not None else 0, checkpoint.folder) from None
         except BaseException:
             with contextlib.suppress(Exception):
                 writer.flush()  # what was described stays in the checkpoint

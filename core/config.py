@@ -558,6 +558,11 @@ def load_config(path: str | Path | None, base: Config | None = None) -> Config:
         data = tomllib.loads(path.read_text())
     except FileNotFoundError:
         raise InputError(f"config file not found: {path}") from None
+    except IsADirectoryError:
+        raise InputError(f"config file {path} is a folder: give the TOML file of settings in it "
+                         f"(see docs/config.md)") from None
+    except OSError as exc:
+        raise InputError(f"config file {path} cannot be read ({exc.strerror or exc})") from None
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise InputError(f"{path}: not valid TOML ({exc})") from None
     return config_from_dict(data, base, source=str(path))

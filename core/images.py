@@ -19,8 +19,27 @@ def list_images(folder: str | Path) -> list[Path]:
         raise InputError(f"not a folder: {folder}")
     files = sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
     if not files:
-        raise InputError(f"no images in {folder} (looked for {', '.join(IMAGE_SUFFIXES)})")
+        raise InputError(f"no images in {folder} (looked for {', '.join(IMAGE_SUFFIXES)}){_subfolders_hint(folder)}")
     return files
+
+
+def _subfolders_hint(folder: Path, shown: int = 3) -> str:
+    """What to point at instead where ``folder`` holds folders (a dataset's root, one folder per traverse)."""
+    subfolders = sorted(p for p in folder.iterdir() if p.is_dir() and not p.name.startswith("."))
+    if not subfolders:
+        return ""
+    names = ", ".join(p.name for p in subfolders[:shown])
+    more = f" and {len(subfolders) - shown} more" if len(subfolders) > shown else ""
+    # The example is a subfolder that holds images, where one does.
+    example = next((p for p in subfolders if _holds_images(p)), subfolders[0])
+    return f"; it holds folders ({names}{more}): give one of them as the source, e.g. {example}"
+
+
+def _holds_images(folder: Path) -> bool:
+    try:
+        return any(f.suffix.lower() in IMAGE_SUFFIXES for f in folder.iterdir())
+    except OSError:  # unreadable: not the one to suggest
+        return False
 
 
 MAX_PIXELS = 100_000_000

@@ -23,6 +23,7 @@ from typing import NoReturn  # noqa: E402
 
 from lostx import __version__  # noqa: E402
 from lostx.core.errors import LostxError  # noqa: E402
+from lostx.options import stop_signals_as_interrupt  # noqa: E402
 from lostx.stream.processes import exit_with_parent  # noqa: E402
 
 COMMANDS = ("demo", "map", "match", "eval", "serve", "replay", "listen", "keys", "backbones", "camera")
@@ -58,9 +59,12 @@ def main(argv: list[str] | None = None) -> int:
     if args.command is None:
         parser.print_help()
         return 2
+    args.command_line = ["lostx", *(sys.argv[1:] if argv is None else argv)]
     warnings.showwarning = _show_warning
     try:
-        return int(args.run(args) or 0)
+        # SIGTERM and SIGHUP, like Ctrl-C, end a command through its cleanup: no child outlives it.
+        with stop_signals_as_interrupt():
+            return int(args.run(args) or 0)
     except LostxError as exc:
         return _fail(str(exc))
     except BrokenPipeError:
@@ -71,9 +75,10 @@ def main(argv: list[str] | None = None) -> int:
     except OSError as exc:
         # A file the command had to write or read failed under it (disk full, permissions): say which.
         return _fail(f"{exc.strerror or exc}: {exc.filename}" if exc.filename else str(exc))
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:
         _close_progress_bars()
-        print("lostx: interrupted", file=sys.stderr)
+        # A command may say what it kept and how to go on (the exception's message).
+        print(f"lostx: interrupted{f': {exc}' if str(exc) else ''}", file=sys.stderr)
         return 130
 
 

@@ -14,6 +14,15 @@ def state_label(result: Result) -> str:
     return "warming up" if result.warming_up else result.state.replace("_", " ")
 
 
+def window_note(window: int, frames: int, source: object) -> str | None:
+    """Said before a traverse of ``frames`` frames from ``source`` is answered with a sequence window of
+    ``window`` frames that it can never fill; None where it fills."""
+    if window <= frames:
+        return None
+    return (f"note: the sequence window is {window} frames and {source} has {frames}: the window never fills, so "
+            f"every answer is not_localized; pass --window {frames} or less")
+
+
 def warm_up_line(warming: int, answers: int, seen: int) -> str | None:
     """Why ``warming`` of ``answers`` were not localized while the sequence window filled (``seen``: the
     most frames the window held); None when none were."""

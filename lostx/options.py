@@ -20,6 +20,7 @@ from lostx.core.config import LIMITS, Config, load_config
 DEFAULTS = Config()
 
 if TYPE_CHECKING:
+    from lostx.core.backbones.base import BackboneInfo
     from lostx.core.maps.refmap import ReferenceMap
     from lostx.viz.sink import RerunSink
 
@@ -143,6 +144,32 @@ def config_from_args(args: argparse.Namespace) -> Config:
         search = dataclasses.replace(search, index=args.index)
     return dataclasses.replace(config, backbone=backbone, lost=lost, verify=verify, search=search, sequence=sequence,
                                tracker=tracker)
+
+
+class IgnoredSettingWarning(UserWarning):
+    """A setting that does not act in this command (shown as one ``lostx: warning:`` line)."""
+
+
+def ignored_classes_note(args: argparse.Namespace, config: Config, refmap: ReferenceMap,
+                         info: BackboneInfo | None) -> str | None:
+    """Why the descriptor classes asked for (``--class-preset``, or ``[lost]`` of a --config file) are not used
+    against ``refmap``, whose backbone is described by ``info``: a map is matched with the classes it was built
+    with. None where none were asked for, or they are the map's own."""
+    lost = config.lost
+    built = refmap.manifest.get("classes")
+    if info is None or built is None or not (lost.classes or lost.class_preset):
+        return None
+    from lostx.core.describe.describer import descriptor_classes
+
+    asked = descriptor_classes(lost, info)
+    if {name: list(members) for name, members in asked.items()} == built:
+        return None
+    if getattr(args, "class_preset", None):
+        setting = f"--class-preset {args.class_preset}"
+    else:
+        setting = f"[lost] {'classes' if lost.classes else 'class_preset'} in {getattr(args, 'config', None)}"
+    return (f"{setting} is ignored: {refmap.path} was built with the classes {', '.join(built)}, and a map is "
+            f"matched with its own (build the map with these classes to use them)")
 
 
 SOURCE_FORMATS = ("folder", "robotcar", "bag", "video", "nuscenes")
@@ -356,44 +383,59 @@ def viewer_args(args: argparse.Namespace) -> list[str]:
 
 @contextlib.contextmanager
 def live_view(args: argparse.Namespace, refmap: ReferenceMap) -> Iterator[RerunSink | None]:
-    """The sink of :func:`viewer_sink_from_args` for the length of a command, closed on the way out.
-
-    While it is open, SIGTERM ends the command the way Ctrl-C does, so that an ``.rrd``
-    always gets its footer (a background job, where Ctrl-C does not reach, is stopped
-    with SIGTERM)."""
+    """The sink of :func:`viewer_sink_from_args` for the length of a command, closed on the way out (the
+    stop signals end a command through this cleanup, see :func:`stop_signals_as_interrupt`, so that an
+    ``.rrd`` always gets its footer and the web viewer's process ends with lostx)."""
     sink = viewer_sink_from_args(args, refmap)
     if sink is None:
         yield None
         return
-    with terminate_as_interrupt():
-        try:
-            yield sink
-        finally:
-            sink.close()
+    try:
+        yield sink
+    finally:
+        sink.close()
+
+
+STOP_SIGNALS = ("SIGTERM", "SIGINT", "SIGHUP")
+"""The signals that end a command the way Ctrl-C does (SIGHUP: the terminal closed)."""
 
 
 @contextlib.contextmanager
-def terminate_as_interrupt() -> Iterator[None]:
-    """SIGTERM raises KeyboardInterrupt in the main thread for the duration (cleanup runs as for Ctrl-C)."""
+def stop_signals_as_interrupt() -> Iterator[None]:
+    """Each of :data:`STOP_SIGNALS` raises KeyboardInterrupt in the main thread for the duration, so that
+    the cleanup written for Ctrl-C (child processes stopped, the web viewer's among them; files completed)
+    runs whichever of them ends the command.
+
+    A script's background job starts with SIGINT ignored, yet ``kill -INT PID`` names this process: it is
+    honoured. A SIGHUP ignored on purpose (``nohup``) stays ignored."""
+
     def interrupt(_signum: int, _frame: object) -> None:
         raise KeyboardInterrupt
 
-    previous = signal.signal(signal.SIGTERM, interrupt)
+    previous: dict[signal.Signals, object] = {}
+    for name in STOP_SIGNALS:
+        number = getattr(signal, name, None)
+        if number is None:  # not on this platform (SIGHUP on Windows)
+            continue
+        if number == signal.SIGHUP and signal.getsignal(number) is signal.SIG_IGN:
+            continue
+        previous[number] = signal.signal(number, interrupt)
     try:
         yield
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        for number, handler in previous.items():
+            signal.signal(number, handler)  # type: ignore[arg-type]
 
 
 def serve_until_interrupted(sink: RerunSink | None) -> None:
-    """With ``--web``, keep the web viewer up until Ctrl-C or SIGTERM; the command's results are out already."""
+    """With ``--web``, keep the web viewer up until Ctrl-C (or another stop signal); the command's results are
+    out already."""
     if sink is None or sink.opened.web_url is None:
         return
     sink.flush()
     viewer_notice(f"serving the web viewer at {sink.opened.web_url} until Ctrl-C")
-    with terminate_as_interrupt():
-        try:
-            while True:
-                time.sleep(3600)
-        except KeyboardInterrupt:
-            pass
+    try:
+        while True:
+            time.sleep(3600)
+    except KeyboardInterrupt:
+        pass

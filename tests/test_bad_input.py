@@ -146,3 +146,23 @@ def test_an_output_that_cannot_be_written_fails_before_any_frame(day_map, robotc
     proc = lostx("match", day_map.path, robotcar / "night", "--out", "/proc/nope.csv")
     assert_one_line_error(proc, "/proc/nope.csv")
     assert "matching" not in proc.stderr and time.monotonic() - start < 30
+
+
+def test_match_connecting_to_no_viewer_says_so_in_one_line(day_map, robotcar, tmp_path):
+    from lostx.viz.rerun_app import free_port
+
+    url = f"rerun+http://127.0.0.1:{free_port()}/proxy"  # nothing listens there
+    out = tmp_path / "m.csv"
+    proc = lostx("match", day_map.path, robotcar / "night", "--out", out, "--quiet", "--connect", url)
+    assert proc.returncode == 0, proc.stderr
+    assert len(_rows(out)) == 10
+    port = url.split(":")[2].split("/")[0]
+    assert proc.stderr.splitlines() == [(f"lostx: live view: no Rerun viewer at {url} (nothing accepts connections "
+                                         f"on 127.0.0.1:{port}); going on without it (start the viewer first: "
+                                         f"`rerun`)")]
+
+
+def test_match_connect_to_what_is_not_a_viewer_url_is_one_line(day_map, robotcar, tmp_path):
+    proc = lostx("match", day_map.path, robotcar / "night", "--out", tmp_path / "m.csv", "--connect", "foo")
+    assert_one_line_error(proc, "--connect", '"foo"', "rerun+http://")
+    assert proc.returncode == 2

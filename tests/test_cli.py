@@ -66,6 +66,42 @@ def test_positions_are_stored(robotcar, tmp_path):
     np.testing.assert_allclose(stored[0], [27.0, -9.0])  # the first image is the last CSV row
 
 
+def test_match_csv_gives_the_matched_position_where_the_map_has_positions(cli_map, robotcar, tmp_path):
+    names = sorted(os.listdir(robotcar / "day"))
+    positions = tmp_path / "pos.csv"
+    # Map coordinates as large as UTM northings, to the centimetre: written back as they were given.
+    positions.write_text("file,x,y\n" + "".join(f"{n},{500123.25 + 3.5 * i},{5735001.75 - i}\n"
+                                                for i, n in enumerate(names)))
+    located = tmp_path / "located"
+    proc = lostx("map", "build", robotcar / "day", "--out", located, "--positions", positions, "--quiet")
+    assert proc.returncode == 0, proc.stderr
+    for refmap, has_positions in ((located, True), (cli_map, False)):
+        out = tmp_path / f"{refmap.name}.csv"
+        proc = lostx("match", refmap, robotcar / "night", "--out", out, "--quiet")
+        assert proc.returncode == 0, proc.stderr
+        rows = list(csv.DictReader(out.open()))
+        assert len(rows) == 10
+        assert ({"x", "y"} <= set(rows[0])) == has_positions
+        for row in rows if has_positions else ():
+            i = int(row["match_index"])
+            assert (row["x"], row["y"]) == (str(500123.25 + 3.5 * i), str(5735001.75 - i))
+
+
+def test_match_warns_once_that_classes_asked_for_are_not_the_maps(cli_map, robotcar, tmp_path):
+    config = tmp_path / "c.toml"
+    config.write_text('[lost]\nclasses = { road = ["road"], wall = ["wall"] }\n')
+    out = tmp_path / "m.csv"
+    proc = lostx("match", cli_map, robotcar / "night", "--out", out, "--quiet", "--config", config)
+    assert proc.returncode == 0, proc.stderr
+    assert len(list(csv.DictReader(out.open()))) == 10
+    assert proc.stderr.splitlines() == [
+        (f"lostx: warning: [lost] classes in {config} is ignored: {cli_map} was built with the classes road, "
+         f"building, vegetation, and a map is matched with its own (build the map with these classes to use them)")]
+    # The map's own classes by name: nothing to warn about.
+    proc = lostx("match", cli_map, robotcar / "night", "--out", out, "--quiet", "--class-preset", "street")
+    assert proc.returncode == 0 and proc.stderr == ""
+
+
 def test_unreadable_image_stops_the_build_and_leaves_nothing(robotcar, tmp_path):
     images = tmp_path / "images"
     images.mkdir()
@@ -83,6 +119,61 @@ def test_empty_folder(tmp_path):
     assert_one_line_error(lostx("map", "build", tmp_path / "empty", "--out", tmp_path / "m"), "no images in")
 
 
+def test_a_folder_of_folders_names_them_and_how_to_point_at_one(robotcar, tmp_path):
+    root = tmp_path / "traverses"
+    for name in ("autumn", "spring", "summer", "winter"):
+        (root / name).mkdir(parents=True)
+    shutil.copy(min((robotcar / "day").glob("*.png")), root / "spring")
+    proc = lostx("map", "build", root, "--out", tmp_path / "m")
+    assert_one_line_error(proc, f"no images in {root}", "it holds folders (autumn, spring, summer and 1 more): "
+                          f"give one of them as the source, e.g. {root / 'spring'}")
+    assert proc.returncode == 2 and not (tmp_path / "m").exists()
+
+
+def test_a_config_that_is_a_folder_is_one_line(cli_map, robotcar, tmp_path):
+    folder = tmp_path / "empty"
+    folder.mkdir()
+    proc = lostx("match", cli_map, robotcar / "night", "--out", tmp_path / "m.csv", "--config", folder)
+    assert_one_line_error(proc, f"lostx: error: config file {folder} is a folder: give the TOML file of settings "
+                          f"in it (see docs/config.md)")
+    assert proc.returncode == 2 and not (tmp_path / "m.csv").exists()
+
+
+def test_ctrl_c_in_map_build_says_what_was_kept_and_how_to_resume(nordland, tmp_path):
+    import signal
+    import threading
+    import time
+
+    out = tmp_path / "winter"
+    argv = ["map", "build", str(nordland / "winter"), "--out", str(out)]
+    proc = subprocess.Popen([sys.executable, "-m", "lostx.cli", *argv], stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, text=True)
+    seen: list[str] = []
+    reader = threading.Thread(target=lambda: seen.extend(iter(lambda: proc.stderr.read(1), "")), daemon=True)
+    reader.start()
+    try:
+        deadline = time.monotonic() + 240
+        # The progress bar has counted a few frames: 3576 are far from done.
+        while not re.search(r"\b([2-9]|\d\d+)/3576\b", "".join(seen)) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(60) == 130
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    reader.join(10)
+    last = "".join(seen).replace("\r", "\n").strip().splitlines()[-1]
+    found = re.fullmatch(r"lostx: interrupted: (\d+) of 3576 frames described are kept \(in (.+)\); to resume, run "
+                         r"the same command again: (.+)", last)
+    assert found, last
+    kept, checkpoint, command = int(found.group(1)), Path(found.group(2)), found.group(3)
+    assert 2 <= kept < 3576
+    assert checkpoint == tmp_path / ".winter.build"
+    chunks = sorted(checkpoint.glob("chunk-*.npz"))
+    assert sum(int(c.stem.split("-")[2]) - int(c.stem.split("-")[1]) for c in chunks) == kept
+    assert command == "lostx " + " ".join(argv)
+
+
 def test_missing_model(robotcar, tmp_path):
     proc = lostx("map", "build", robotcar / "day", "--out", tmp_path / "m", "--model", tmp_path / "nope.tflite")
     assert_one_line_error(proc, "nope.tflite", "not found", "--model")
@@ -93,6 +184,18 @@ def test_wrong_model_file(robotcar, tmp_path):
     fake.write_bytes(os.urandom(5000))
     proc = lostx("map", "build", robotcar / "day", "--out", tmp_path / "m", "--model", fake)
     assert_one_line_error(proc, "fake.tflite", "--model")
+
+
+@pytest.mark.parametrize("content", [b"hello\n", b"", os.urandom(3000)], ids=["text", "empty", "random"])
+def test_a_junk_pth_model_is_one_clean_line(robotcar, tmp_path, content):
+    junk = tmp_path / "junk.pth"
+    junk.write_bytes(content)
+    proc = lostx("map", "build", robotcar / "day", "--out", tmp_path / "m", "--backbone", "espnetv2-cityscapes",
+                 "--model", junk)
+    # Nothing of what PyTorch said (a pickle opcode, an errno, advice on torch.load): the file and what was expected.
+    assert_one_line_error(proc)
+    assert proc.stderr == (f"lostx: error: {junk} is not a PyTorch checkpoint ({len(content)} bytes: truncated, or "
+                           f"another kind of file); pass the ESPNetv2 Cityscapes weights with --model PATH\n")
 
 
 def test_truncated_map_file(cli_map, robotcar, tmp_path):
@@ -276,6 +379,21 @@ def test_match_says_why_the_sequence_answers_are_not_localized(cli_map, robotcar
     assert "0 localized, 10 not_localized while the 12-frame sequence window filled" in proc.stdout
     states = {row["state"] for row in csv.DictReader((tmp_path / "s.csv").open())}
     assert states == {"not_localized"}
+
+
+def test_demo_says_why_a_window_longer_than_the_night_traverse_never_fills(robotcar, tmp_path):
+    from lostx.stream.processes import lostx_command
+
+    demo = subprocess.Popen(lostx_command("demo", "--window", "50", "--workdir", str(tmp_path / "demo"), "--data",
+                                          str(robotcar.parent)), stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
+                            text=True)
+    try:
+        first = demo.stdout.readline().rstrip("\n")  # said before the map is built: no need to wait for the rest
+    finally:
+        demo.terminate()
+        demo.wait(60)
+    assert first == (f"note: the sequence window is 50 frames and {robotcar / 'night'} has 10: the window never "
+                     f"fills, so every answer is not_localized; pass --window 10 or less")
 
 
 def test_the_summary_lists_only_the_stages_that_ran(robotcar, tmp_path):

@@ -200,6 +200,40 @@ def test_sigterm_while_matching_leaves_a_complete_recording(day_map, tmp_path, e
     assert done.returncode == 0, done.stdout + done.stderr
 
 
+@linux_only
+@pytest.mark.parametrize("stop", [signal.SIGTERM, signal.SIGINT, signal.SIGHUP], ids=lambda s: s.name)
+def test_every_stop_signal_to_lostx_alone_ends_the_web_viewer_with_it(day_map, robotcar, tmp_path, env, stop):
+    # Started as a script's background job is: with SIGINT ignored. The signal goes to lostx's pid only, not to
+    # its process group, so nothing but lostx itself can end the web viewer's file server.
+    rrd = tmp_path / "m.rrd"
+    proc = subprocess.Popen(lostx_command("match", str(day_map.path), str(robotcar / "night"), "--out",
+                                          str(tmp_path / "m.csv"), "--rrd", str(rrd), "--web", "--web-port", "0",
+                                          "--grpc-port", "0", "--quiet"),
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, stdin=subprocess.DEVNULL,
+                            env=env, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))
+    stderr = Output(proc.stderr)
+    Output(proc.stdout)
+    try:
+        stderr.wait_for("serving the web viewer at ", timeout=180)
+        tree = process_tree(proc.pid)
+        ports = {port for _, port in listening(tree)}
+        assert len(tree) == 2 and len(ports) == 3  # the file server; the page, the recording, the files
+        proc.send_signal(stop)
+        assert proc.wait(30) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    deadline = time.monotonic() + 10
+    while any(Path(f"/proc/{pid}").exists() for pid in tree) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not any(Path(f"/proc/{pid}").exists() for pid in tree), "the web viewer's process outlived lostx"
+    for port in ports:
+        with pytest.raises(OSError):
+            fetch(f"http://127.0.0.1:{port}/")
+    done = verify_rrd(rrd)  # the recording was closed, as on Ctrl-C
+    assert done.returncode == 0, done.stdout + done.stderr
+
+
 def robotcar_like_queries(tmp_path: Path, n: int) -> Path:
     """A folder of ``n`` query images: the ten RobotCar night frames, repeated (links, no copies)."""
     from lostx.core.paths import data_dir

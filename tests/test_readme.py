@@ -28,3 +28,13 @@ def test_the_python_example_runs_as_written(tmp_path):
     # Ten map frames leave too few wrong answers to measure: the localizer never claims to be sure here.
     assert states[2:] == ["not_localized"] * 8
     assert (clone / "day.map" / "manifest.json").is_file()
+
+
+def test_every_environment_variable_a_user_sets_is_in_the_readme():
+    root = README.parent
+    sources = [p for folder in ("core", "lostx", "stream", "replay", "viz", "evaluation", "cluster")
+               for p in (root / folder).rglob("*.py")]
+    read = {name for p in sources for name in re.findall(r"os\.environ\.get\(\"(LOSTX_[A-Z_]+)\"", p.read_text())}
+    assert {"LOSTX_SHARED", "LOSTX_MODELS", "LOSTX_DATA"} <= read
+    text = README.read_text()
+    assert [name for name in sorted(read) if f"`${name}`" not in text] == []

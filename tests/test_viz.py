@@ -599,3 +599,31 @@ def test_legend_lists_the_frequent_classes_first():
     assert legend_entries(np.array([2, 0, 2, 1, 0, 2, 5])) == [(2, 3), (0, 2), (1, 1), (5, 1)]
     assert legend_entries(np.array([3, 3, 1, 2]), limit=2) == [(3, 2), (1, 1)]
     assert legend_entries(np.zeros(0, np.uint16)) == []
+
+
+def test_a_viewer_that_is_gone_costs_no_line_per_message(tmp_path):
+    import subprocess
+    import sys
+
+    from lostx.viz.rerun_app import free_port
+
+    # Rerun's own logging is read once, when it loads: a fresh process, as a lostx command is.
+    script = (
+        "import lostx.viz\n"
+        "import rerun as rr\n"
+        "rec = rr.RecordingStream('gone')\n"
+        f"rec.set_sinks(rr.GrpcSink('rerun+http://127.0.0.1:{free_port()}/proxy'))\n"
+        "for i in range(20):\n"
+        "    rec.log('x', rr.Scalars([float(i)]))\n"
+        "try:\n"
+        "    rec.flush(timeout_sec=1.0)\n"
+        "except RuntimeError as exc:\n"
+        "    print('flush:', exc)\n"
+        "rec.disconnect()\n"
+    )
+    env = {k: v for k, v in os.environ.items() if k != "RUST_LOG"}
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120, env=env,
+                          cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    assert "ERROR" not in proc.stderr and "WARN" not in proc.stderr, proc.stderr
+    assert proc.stdout.startswith("flush:")  # the failure still reaches lostx, which says it once

@@ -12,13 +12,14 @@ import dataclasses
 import ipaddress
 from dataclasses import dataclass, field
 from pathlib import Path
+from urllib.parse import urlsplit
 
 import rerun as rr
 import rerun.blueprint as rrb
 
 from lostx.core.errors import InputError
 
-from .rerun_app import ALTERNATIVES, ViewerUnavailable, free_port, port_is_free, spawn_viewer
+from .rerun_app import ALTERNATIVES, ViewerUnavailable, accepts_connections, free_port, port_is_free, spawn_viewer
 from .target import ViewerOutput
 from .web import WebViewer
 
@@ -55,8 +56,16 @@ def open_output(recording: rr.RecordingStream, output: ViewerOutput, blueprint: 
         sinks.append(rr.FileSink(str(output.rrd)))
         opened.messages.append(f"recording to {output.rrd} (open it with: rerun {output.rrd})")
     if output.connect is not None:
-        sinks.append(rr.GrpcSink(output.connect))
-        opened.messages.append(f"streaming to the viewer at {output.connect}")
+        absent = no_viewer_at(output.connect)
+        if absent is not None:
+            # Said once here, instead of Rerun's own errors for every message it could not send.
+            opened.messages.append(f"{absent}; going on without it (start the viewer first: `rerun`)")
+        else:
+            try:
+                sinks.append(rr.GrpcSink(output.connect))
+            except RuntimeError as exc:  # Rerun's words name the schemes it takes
+                raise InputError(f"--connect: {exc}") from None
+            opened.messages.append(f"streaming to the viewer at {output.connect}")
     if output.spawn:
         try:
             spawn_viewer(output.spawn_port, output.memory_limit)
@@ -77,6 +86,21 @@ def open_output(recording: rr.RecordingStream, output: ViewerOutput, blueprint: 
     if output.web:
         _serve_page(opened, output)
     return opened
+
+
+def no_viewer_at(url: str, timeout: float = 2.0) -> str | None:
+    """Why nothing can take a recording at ``url`` (nothing accepts connections on its port), or None where
+    something listens there, or where the URL names no port to try (Rerun's own default is then used)."""
+    parts = urlsplit(url)
+    try:
+        port = parts.port
+    except ValueError:
+        return None  # not a URL Rerun takes either: its own message says why
+    if port is None or not parts.hostname:
+        return None
+    if accepts_connections(port, parts.hostname, timeout):
+        return None
+    return f"no Rerun viewer at {url} (nothing accepts connections on {parts.hostname}:{port})"
 
 
 def _with_ports(output: ViewerOutput) -> ViewerOutput:

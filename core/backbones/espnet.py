@@ -375,11 +375,11 @@ def read_state_dict(path: Path) -> dict[str, torch.Tensor]:
         raise ModelError(f"model file not found: {path}; {HINT}")
     try:
         loaded = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # torch.load reports bad files as EOFError, KeyError, RuntimeError, UnpicklingError...
+    except Exception:  # torch.load reports bad files as EOFError, KeyError, RuntimeError, UnpicklingError...
+        # ... whose words (a pickle opcode, an errno, advice about torch.load's arguments) mean nothing to a user.
         size = path.stat().st_size
         kind = "a damaged PyTorch archive" if zipfile.is_zipfile(path) else "not a PyTorch checkpoint"
-        reason = str(exc).strip().splitlines()[0][:120] if str(exc).strip() else type(exc).__name__
-        raise ModelError(f"{path} is {kind} ({size} bytes: truncated or another kind of file; {reason}); {HINT}") from None
+        raise ModelError(f"{path} is {kind} ({size} bytes: truncated, or another kind of file); {HINT}") from None
     if isinstance(loaded, Mapping) and isinstance(loaded.get("state_dict"), Mapping):
         loaded = loaded["state_dict"]  # a training checkpoint wraps the weights
     if not isinstance(loaded, Mapping) or not all(isinstance(v, torch.Tensor) for v in loaded.values()):

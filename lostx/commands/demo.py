@@ -16,14 +16,13 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from lostx.display import state_label
+from lostx.display import state_label, window_note
 from lostx.options import (
     VIEWER_NOTICE,
     add_backbone_options,
     add_viewer_options,
     config_from_args,
     number,
-    terminate_as_interrupt,
     viewer_args,
     window_length,
 )
@@ -92,11 +91,13 @@ def run(args: argparse.Namespace) -> int:
     if not (data / "day").is_dir() or not (data / "night").is_dir():
         raise InputError(f"demo data not found: {data} should hold day/ and night/ (pass --data or set LOSTX_DATA)")
     workdir = check_output_folder(args.workdir or cache_dir() / "demo", "--workdir")
-    refmap = demo_map(data / "day", workdir / f"robotcar-day-{config.backbone.name}", config, args.rebuild)
     night = folder_traverse(data / "night")
-    # SIGTERM ends the demo like Ctrl-C does, through the cleanup below.
-    with terminate_as_interrupt(), tempfile.TemporaryDirectory(prefix="lostx-demo-") as tmp, \
-            ProcessGroup(log_dir=tmp) as procs:
+    note = window_note(args.window, len(night), data / "night")
+    if note is not None:
+        print(note, flush=True)
+    refmap = demo_map(data / "day", workdir / f"robotcar-day-{config.backbone.name}", config, args.rebuild)
+    # Every stop signal ends the demo like Ctrl-C does, through the cleanup below (lostx.cli).
+    with tempfile.TemporaryDirectory(prefix="lostx-demo-") as tmp, ProcessGroup(log_dir=tmp) as procs:
         notices = _ViewerNotices(procs)
         answers, final = _stream(args, refmap, night, Path(tmp), procs, notices)
         _summary(answers, len(night), final, _too_short(refmap, config))

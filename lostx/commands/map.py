@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import argparse
+import shlex
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from lostx.options import (
     add_config_options,
@@ -13,6 +15,9 @@ from lostx.options import (
     source_options_from_args,
     whole_number,
 )
+
+if TYPE_CHECKING:
+    from lostx.core.build import BuildInterrupted
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -54,7 +59,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run_build(args: argparse.Namespace) -> int:
     from lostx.core.backbones import load_backbone
-    from lostx.core.build import build_map
+    from lostx.core.build import BuildInterrupted, build_map
     from lostx.core.describe.describer import LostDescriber
     from lostx.core.describe.thumbnail import ThumbnailDescriber
     from lostx.core.maps.refmap import ReferenceMap
@@ -78,9 +83,12 @@ def run_build(args: argparse.Namespace) -> int:
         from lostx.cluster.raybuild import RayDescribers
 
         cluster = RayDescribers(args.ray or None, args.ray_workers)
-    summary = build_map(traverse, args.out, config, describer, metadata, overwrite=args.overwrite,
-                        total=len(traverse), progress=not args.quiet, label=f"describing {traverse.root.name}",
-                        cluster=cluster)
+    try:
+        summary = build_map(traverse, args.out, config, describer, metadata, overwrite=args.overwrite,
+                            total=len(traverse), progress=not args.quiet, label=f"describing {traverse.root.name}",
+                            cluster=cluster)
+    except BuildInterrupted as stop:
+        raise KeyboardInterrupt(resume_line(stop, len(traverse), args.command_line)) from None
     print(
         f"built {summary.path}: {summary.n_frames} frames ({args.descriptor}) in {summary.seconds:.1f} s, "
         f"{summary.bytes / 1e6:.2f} MB ({summary.bytes_per_frame / 1e3:.1f} kB per frame)"
@@ -88,6 +96,14 @@ def run_build(args: argparse.Namespace) -> int:
     if args.descriptor == "lost":
         print(_layout_line(ReferenceMap.open(summary.path), traverse))
     return 0
+
+
+def resume_line(stop: BuildInterrupted, total: int, command_line: list[str]) -> str:
+    """What an interrupted build kept, and the command that resumes it (the same one again)."""
+    if not stop.kept:
+        return "no frame was described yet, so there is nothing to resume from"
+    return (f"{stop.kept} of {total} frames described are kept (in {stop.checkpoint}); to resume, run the same "
+            f"command again: {shlex.join(command_line)}")
 
 
 def _layout_line(refmap, traverse) -> str:  # noqa: ANN001 (ReferenceMap, Traverse: imported lazily)

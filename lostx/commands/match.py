@@ -7,19 +7,22 @@ import csv
 import dataclasses
 import sys
 import time
+import warnings
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from lostx.display import window_note
 from lostx.options import (
+    IgnoredSettingWarning,
     add_config_options,
     add_source_options,
     add_viewer_options,
     config_from_args,
+    ignored_classes_note,
     live_view,
     print_notes,
     serve_until_interrupted,
     source_options_from_args,
-    terminate_as_interrupt,
 )
 
 if TYPE_CHECKING:
@@ -30,6 +33,8 @@ COLUMNS = ["query_index", "query_file", "match_index", "match_file", "score", "c
            "distance", "correspondences"]
 SEQUENCE_COLUMNS = ["single_match_index", "state", "speed"]
 HEADING_COLUMNS = ["heading", "heading_confidence"]
+POSITION_COLUMNS = ["x", "y"]
+"""The map position of ``match_index``, where the map has positions."""
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -82,16 +87,21 @@ def run(args: argparse.Namespace) -> int:
         queries = queries.reversed()
     print_notes(queries.notes)
     window = config.sequence.length
-    if args.sequence and window > len(queries):
-        print(f"note: the sequence window is {window} frames and {args.queries} has {len(queries)}: the window "
-              f"never fills, so every answer is not_localized; pass --window {len(queries)} or less")
+    note = window_note(window, len(queries), args.queries) if args.sequence else None
+    if note is not None:
+        print(note)
     localizer = Localizer(refmap, config)
-    columns = COLUMNS + (SEQUENCE_COLUMNS if args.sequence else []) + HEADING_COLUMNS
+    backbone = getattr(localizer.matcher.describer, "backbone", None)  # a thumbnail map has none
+    ignored = ignored_classes_note(args, config, refmap, None if backbone is None else backbone.info)
+    if ignored is not None:
+        warnings.warn(ignored, IgnoredSettingWarning, stacklevel=1)
+    columns = (COLUMNS + (SEQUENCE_COLUMNS if args.sequence else []) + HEADING_COLUMNS
+               + (POSITION_COLUMNS if refmap.positions is not None else []))
     with live_view(args, refmap) as sink, AnswersFile(args.out, columns, len(queries)) as answers:
         start = time.perf_counter()
         estimates = []
-        with terminate_as_interrupt(), tqdm(queries, total=len(queries), desc="matching", unit="frame",
-                                            disable=args.quiet, leave=False) as bar:
+        with tqdm(queries, total=len(queries), desc="matching", unit="frame", disable=args.quiet,
+                  leave=False) as bar:
             try:
                 for frame in bar:
                     estimate = localizer.step(frame)
@@ -157,6 +167,9 @@ def csv_row(name: str, estimate: Estimate, refmap: ReferenceMap, sequence: bool)
     }
     row["heading"] = estimate.heading
     row["heading_confidence"] = f"{estimate.heading_confidence:.4f}"
+    if estimate.position is not None:
+        # Exactly as the map holds them: map coordinates may be large (UTM) or fine (degrees).
+        row["x"], row["y"] = (float(v) for v in estimate.position)
     if sequence:
         row["single_match_index"] = estimate.single_match_index
         row["state"] = estimate.state
