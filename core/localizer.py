@@ -16,7 +16,10 @@ The heading (the query viewing the route the same way as the map or the
 opposite way) is found from the evidence by a :class:`HeadingFilter`; the
 frame's matches under that heading feed the later stages. A declared camera
 ties the direction of travel to the heading; undeclared, trajectories of both
-signs are searched.
+signs are searched, and the direction of travel is found from them
+(:class:`DirectionFilter`): once it is sure, the answer keeps to it. While the
+window fills, the answer is the best trajectory so far (``sequence.warm_up``),
+flagged ``warming_up``.
 
 The margin, what the confidence is calibrated from:
 
@@ -26,9 +29,10 @@ The margin, what the confidence is calibrated from:
 - single frame (``sequence.enabled = False``): the verified uniqueness
   1 - s_best / s_alt of :func:`lostx.core.match.matcher.uniqueness`.
 
-Confidence, in [0, 1]: the margin's rank among the margins of wrong answers
-measured on the map itself (:mod:`lostx.core.decide.calibration`); 0 while warming up
-and when the tracker replaces the answer by its prediction.
+Confidence, in [0, 1]: 1 - the probability that a wrong answer leads by as much,
+from the tail of the wrong answers' leads measured on the map itself
+(:mod:`lostx.core.decide.calibration`); 0 while warming up and when the tracker
+replaces the answer by its prediction.
 
 State: ``localized`` when the confidence reaches ``decision.min_confidence``,
 the heading is at least ``heading.min_confidence`` probable and, with the
