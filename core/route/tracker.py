@@ -112,3 +112,20 @@ class RouteTracker:
         return all(
             abs((b[0] - a[0]) - b[1]) <= self.config.position_sigma * 2 for a, b in zip(points, points[1:])
         )
+
+    def state(self) -> dict:
+        """The track (position and speed with their covariance, None while not tracking), the misses and the
+        rejected answers, as plain values and arrays."""
+        return {"x": None if self.kf is None else self.kf.x, "P": None if self.kf is None else self.kf.P,
+                "misses": self.misses, "rejected": [list(r) for r in self._rejected]}
+
+    def restore(self, state: dict) -> None:
+        self.reset()
+        if state["x"] is not None:
+            self._start(0.0, 0.0)
+            assert self.kf is not None
+            self.kf.x = np.asarray(state["x"], dtype=np.float64).reshape(2, 1)
+            self.kf.P = np.asarray(state["P"], dtype=np.float64).reshape(2, 2)
+        self.misses = int(state["misses"])
+        self._rejected.extend((float(p), float(v)) for p, v in state["rejected"])
+
