@@ -321,7 +321,8 @@ class Localizer:
         looked up on a very large map)."""
         return {"map_frames": self.map.n_frames, "matcher": self.matcher.state(), "sequence": self.sequence.state(),
                 "following_distance": self.following_distance, "last_progress": self._last_progress,
-                "tracker": self.tracker.state(), "heading": self.heading.state(), "last_timestamp": self._last_timestamp}
+                "tracker": self.tracker.state(), "heading": self.heading.state(),
+                "last_timestamp": self._last_timestamp}
 
     def restore(self, state: dict) -> None:
         """Continue from :meth:`state` (of a localizer over a map of the same size and the same settings)."""

@@ -230,7 +230,8 @@ class LocalizerService:
             wake_endpoint = f"inproc://lostx-wake-{self.session}"
             self._wake = self._context.socket(zmq.PAIR)
             self._wake.bind(wake_endpoint)
-            self._worker = Worker(self.sinks, self._context, wake_endpoint, self.log, save_states=self.journal is not None)
+            self._worker = Worker(self.sinks, self._context, wake_endpoint, self.log,
+                                  save_states=self.journal is not None)
             if self.journal is not None and self._states is not None:
                 journal_endpoint = f"inproc://lostx-journal-{self.session}"
                 self._journal_wake = self._context.socket(zmq.PAIR)
@@ -563,7 +564,8 @@ class LocalizerService:
         stream's frames are answered in their order."""
         first = self._refused_from.get(name)
         if self._journal_failing:
-            text = f"the journal cannot be written ({self._writer.failure if self._writer else ''}); send it again later"
+            failure = self._writer.failure if self._writer is not None else ""
+            text = f"the journal cannot be written ({failure}); send it again later"
         elif first is not None and frame_id > first:
             text = f"frame {first} of this stream was refused and comes first; send this one again after it"
         else:

@@ -41,7 +41,8 @@ from .errors import StreamError
 
 SUFFIX = ".state"
 _ARRAY = 1
-"""msgpack extension type of a numpy array: [dtype, shape, bytes]."""
+"""msgpack extension type of a numpy array: [dtype, shape, bytes] or, for float64 values that float32 holds
+exactly (most of a state: costs computed in float32), [dtype, shape, float32 bytes, "<f4"]."""
 
 
 class StateFileError(StreamError):
@@ -60,8 +61,12 @@ def unpack(data: bytes) -> Any:
 def _encode(value: Any) -> Any:
     if isinstance(value, np.ndarray):
         array = np.ascontiguousarray(value)
-        return msgpack.ExtType(_ARRAY, msgpack.packb([array.dtype.str, list(array.shape), array.tobytes()],
-                                                     use_bin_type=True))
+        fields = [array.dtype.str, list(array.shape), array.tobytes()]
+        if array.dtype == np.float64:
+            narrow = array.astype(np.float32)
+            if np.array_equal(narrow, array, equal_nan=True):
+                fields[2:] = [narrow.tobytes(), narrow.dtype.str]
+        return msgpack.ExtType(_ARRAY, msgpack.packb(fields, use_bin_type=True))
     if isinstance(value, np.generic):
         return value.item()
     raise TypeError(f"a localizer state holds a {type(value).__name__}, which does not pack")
@@ -70,10 +75,10 @@ def _encode(value: Any) -> Any:
 def _decode(code: int, data: bytes) -> Any:
     if code != _ARRAY:
         raise StateFileError(f"unknown msgpack extension {code} in a saved state")
-    dtype, shape, raw = msgpack.unpackb(data, raw=False)
-    if np.dtype(dtype).hasobject:
+    dtype, shape, raw, *stored = msgpack.unpackb(data, raw=False)
+    if np.dtype(dtype).hasobject or any(np.dtype(s).hasobject for s in stored):
         raise StateFileError("a saved state holds an array of objects")
-    return np.frombuffer(raw, dtype=np.dtype(dtype)).reshape(shape).copy()
+    return np.frombuffer(raw, dtype=np.dtype(stored[0] if stored else dtype)).reshape(shape).astype(dtype)
 
 
 @dataclass(frozen=True)

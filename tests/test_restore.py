@@ -92,6 +92,11 @@ def test_states_pack_arrays_exactly_and_nothing_executable():
     back = unpack(pack(state))
     assert back["a"].dtype == np.float32 and back["a"].shape == (3, 4) and (back["a"] == state["a"]).all()
     assert back["b"] == [7, None, 0.5] and back["c"].dtype == bool
+    costs = np.array([[0.1, np.nan], [np.inf, 2.0]])  # float64 holding a value float32 does not: kept whole
+    wide = unpack(pack({"x": costs, "y": costs.astype(np.float32).astype(np.float64)}))
+    assert wide["x"].dtype == wide["y"].dtype == np.float64
+    assert np.array_equal(wide["x"], costs, equal_nan=True) and wide["x"][0, 0] == 0.1
+    assert len(pack(np.zeros(1000))) < 4100 < len(pack(np.full(1000, 0.1)))
     with pytest.raises(TypeError, match="holds a object, which does not pack"):
         pack({"x": object()})
     forged = msgpack.packb(msgpack.ExtType(1, msgpack.packb(["|O", [1], b"\0" * 8])))
