@@ -20,7 +20,11 @@ sequence number. With a journal, an answer is written there and made durable
 batches) before its frame is acknowledged and before it is published, so a
 listener that missed answers (it was stopped, killed, or restarted, or the
 service was) fetches them from the history socket; the numbers go on across
-restarts of the service.
+restarts of the service. Each stream's localizer state is saved with the
+answers (:mod:`lostx.stream.states`), so a restarted service carries every
+stream on as if it had not stopped. A journal that cannot be written (a full
+disk) refuses new frames with ``journal_unwritable`` until the writes succeed
+again; the service stays up, and nothing is acknowledged that is not on disk.
 
 :meth:`LocalizerService.stop` (from a signal handler or another thread) lets
 the worker finish the frame in hand, publishes its answer and the final stats,
@@ -542,6 +546,9 @@ class LocalizerService:
             if self._hold_back(identity, name, message.id):
                 return
         new = name not in self.streams
+        if new and len(self.streams) >= self.streams.max_streams:
+            for gone in self.streams.expire(now):  # their saved states go with them
+                self._forget(gone)
         try:
             state = self.streams.get(name, now)
         except ProtocolError as exc:
