@@ -26,3 +26,8 @@ class MapError(LostxError):
 
 class InputError(LostxError):
     """A folder, CSV, frame or argument that cannot be used as given."""
+
+
+class StateError(LostxError):
+    """A localizer's state that cannot be saved or restored (a part that does not carry, or a saved state
+    from other settings)."""

@@ -59,7 +59,7 @@ from .decide.calibration import PLACES, UNCALIBRATED, Calibration, load, setting
 from .decide.estimate import Candidate, Estimate, Evidence
 from .decide.tail import leads
 from .describe.inputcheck import InputCheck
-from .errors import InputError
+from .errors import InputError, StateError
 from .frame import Frame, Heading
 from .images import check_frame
 from .maps.refmap import ReferenceMap
@@ -326,6 +326,34 @@ class Localizer:
             return None
         x, y = self.map.positions[index]
         return float(x), float(y)
+
+    def state(self) -> dict:
+        """Everything that carries from one frame to the next (the matcher's query statistics, the sequence window,
+        the tracker, the heading filter, what the trajectories follow), as plain values and numpy arrays: a
+        localizer over the same map and settings given it by :meth:`restore` answers the next frames exactly as
+        this one would. :class:`StateError` where a part cannot be carried (the layout's gathered frames, costs
+        looked up on a very large map)."""
+        return {"map_frames": self.map.n_frames, "matcher": self.matcher.state(), "sequence": self.sequence.state(),
+                "following_distance": self.following_distance, "last_progress": self._last_progress,
+                "tracker": self.tracker.state(), "heading": self.heading.state(), "direction": self.direction.belief,
+                "last_timestamp": self._last_timestamp}
+
+    def restore(self, state: dict) -> None:
+        """Continue from :meth:`state` (of a localizer over a map of the same size and the same settings)."""
+        if state["map_frames"] != self.map.n_frames:
+            raise StateError(f"a saved state over a map of {state['map_frames']} frames, this map has "
+                             f"{self.map.n_frames}")
+        self.reset()
+        self.matcher.restore(state["matcher"])
+        self.following_distance = state["following_distance"]
+        if self.following_distance is not None:
+            self.sequence = self._sequence_filter(self.map.progress if self.following_distance else None)
+        self.sequence.restore(state["sequence"])
+        self._last_progress = state["last_progress"]
+        self.tracker.restore(state["tracker"])
+        self.heading.restore(state["heading"])
+        self.direction.restore(state["direction"])
+        self._last_timestamp = state["last_timestamp"]
 
 
 def _candidates(result: MatchResult) -> list[Candidate]:

@@ -19,7 +19,7 @@ def check_output_file(path: str | Path, what: str) -> Path:
     if path.is_dir():
         raise InputError(f"{what} {path} is a folder; give the name of a file to write")
     if path.exists() and not os.access(path, os.W_OK):
-        raise InputError(f"{what} {path} cannot be written (no permission)")
+        raise InputError(f"{what} {path} cannot be written ({_why_not(path)})")
     _check_parent(path, what)
     return path
 
@@ -31,7 +31,7 @@ def check_output_folder(path: str | Path, what: str) -> Path:
         raise InputError(f"{what} {path} is a file, not a folder")
     if path.is_dir():
         if not os.access(path, os.W_OK | os.X_OK):
-            raise InputError(f"{what} {path} cannot be written into (no permission)")
+            raise InputError(f"{what} {path} cannot be written into ({_why_not(path)})")
         return path
     _check_parent(path, what)
     return path
@@ -45,4 +45,9 @@ def _check_parent(path: Path, what: str) -> None:
     if not parent.is_dir():
         raise InputError(f"{what} {path}: {parent} is a file, not a folder")
     if not os.access(parent, os.W_OK | os.X_OK):
-        raise InputError(f"{what} {path}: cannot write in {parent} (no permission or a read-only file system)")
+        raise InputError(f"{what} {path}: cannot write in {parent} ({_why_not(parent)})")
+
+
+def _why_not(path: Path) -> str:
+    """Why a path that exists cannot be written: its file system is mounted read-only, or permissions."""
+    return "a read-only file system" if os.statvfs(path).f_flag & os.ST_RDONLY else "no permission"

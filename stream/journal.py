@@ -155,6 +155,44 @@ class Journal:
         self._dirty = False
         self.committed = self.last
 
+    def rollback(self) -> None:
+        """Forget the answers appended since the last commit, in the index and on disk: after a failed write
+        (a full disk, say) the journal is as it was committed, and the same answers may be appended again."""
+        with self._index_lock:
+            segment = self._segments[-1] if self._segments else None
+            if segment is None:
+                return
+            while segment.count and segment.first + segment.count - 1 > self.committed:
+                segment.size = segment.offsets.pop()
+            if self._fd is not None:
+                try:
+                    os.ftruncate(self._fd, segment.size)
+                except OSError as exc:
+                    raise JournalError(f"journal {segment.path}: cannot cut off a failed write ({exc.strerror})") \
+                        from None
+        self._dirty = False
+
+    def cut_after(self, seq: int) -> None:
+        """Delete the answers after ``seq``: written by a service that stopped before it acknowledged or
+        published them (their batch never completed)."""
+        if self.last <= seq:
+            return
+        with self._index_lock:
+            if self._fd is not None:
+                os.close(self._fd)
+                self._fd = None
+            while len(self._segments) > 1 and self._segments[-1].first > seq:
+                self._segments.pop().path.unlink()
+            segment = self._segments[-1]
+            keep = max(0, seq + 1 - segment.first)
+            if keep < segment.count:
+                segment.size = segment.offsets[keep]
+                del segment.offsets[keep:]
+                os.truncate(segment.path, segment.size)
+            self._fd = os.open(segment.path, os.O_WRONLY | os.O_APPEND)
+        self._sync_folder()
+        self.committed = self.last
+
     def _start_segment(self, seq: int) -> None:
         self.commit()
         with self._index_lock:
@@ -231,7 +269,10 @@ class Journal:
 
     def _lock_folder(self) -> None:
         path = self.folder / "lock"
-        self._lock_fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            self._lock_fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as exc:
+            raise JournalError(f"cannot write in the journal folder {self.folder}: {exc.strerror}") from None
         try:
             fcntl.flock(self._lock_fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:

@@ -48,6 +48,7 @@ ERROR_CODES: dict[str, str] = {
     "bad_timestamp": "the timestamp goes back in its stream, or jumps further ahead than max_time_jump",
     "too_many_streams": "the frame starts a stream while max_streams streams are live",
     "journal_failed": "the journal could not be read",
+    "journal_unwritable": "the journal cannot be written now (a full or failing disk); the frame was not accepted",
 }
 
 MAX_NAME = 256

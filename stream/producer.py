@@ -35,6 +35,9 @@ HELLO_RETRY_S = 0.5
 """How often a producer waiting for the service says hello again."""
 REPLY_LIMITS = Limits(max_message_bytes=1024 * 1024)
 """Replies are small; a larger one is refused unread."""
+SEND_AGAIN = frozenset({"journal_unwritable"})
+"""Error codes that refuse a frame for now only: lossless, it is sent again after :data:`SEND_AGAIN_S`."""
+SEND_AGAIN_S = 1.0
 
 
 @dataclass
@@ -79,6 +82,7 @@ class FramePublisher:
         self._outdated: str | None = None  # why a service refused this producer's schema version
         self._pending: OrderedDict[int, tuple[bytes, float | None]] = OrderedDict()  # id -> (payload, sent at)
         self._last_hello = 0.0
+        self._held_until = 0.0  # the service refused frames for now: none is sent before this
         self._connections = 0
         self._context = zmq.Context()
         self._socket = self._context.socket(zmq.DEALER)
@@ -193,6 +197,8 @@ class FramePublisher:
 
     def _send_unsent(self, deadline: float | None) -> None:
         """Send every pending frame not (or no longer) sent, oldest first."""
+        while time.monotonic() < self._held_until:
+            self._wait_step(deadline)
         while True:
             frame_id = next((i for i, (_, sent_at) in self._pending.items() if sent_at is None), None)
             if frame_id is None:
@@ -256,8 +262,13 @@ class FramePublisher:
             self.errors.append(reply)
             if reply.code == "bad_version" and reply.frame_id is None:
                 self._outdated = reply.text
-            if reply.frame_id is not None:
-                self._pending.pop(reply.frame_id, None)  # an error is that frame's answer
+            if reply.frame_id is None or reply.frame_id not in self._pending:
+                return
+            if reply.code in SEND_AGAIN:
+                self._pending[reply.frame_id] = (self._pending[reply.frame_id][0], None)
+                self._held_until = time.monotonic() + SEND_AGAIN_S
+            else:
+                del self._pending[reply.frame_id]  # an error is that frame's answer
 
     def _resend_all(self) -> None:
         """Mark every pending frame sent so far to be sent again (in order, by :meth:`_send_unsent`)."""

@@ -20,7 +20,11 @@ sequence number. With a journal, an answer is written there and made durable
 batches) before its frame is acknowledged and before it is published, so a
 listener that missed answers (it was stopped, killed, or restarted, or the
 service was) fetches them from the history socket; the numbers go on across
-restarts of the service.
+restarts of the service. Each stream's localizer state is saved with the
+answers (:mod:`lostx.stream.states`), so a restarted service carries every
+stream on as if it had not stopped. A journal that cannot be written (a full
+disk) refuses new frames with ``journal_unwritable`` until the writes succeed
+again; the service stays up, and nothing is acknowledged that is not on disk.
 
 :meth:`LocalizerService.stop` (from a signal handler or another thread) lets
 the worker finish the frame in hand, publishes its answer and the final stats,
@@ -29,6 +33,7 @@ and returns.
 
 from __future__ import annotations
 
+import dataclasses
 import queue
 import secrets
 import sys
@@ -42,21 +47,23 @@ import msgpack
 import zmq
 
 from lostx.core.config import StreamConfig
+from lostx.core.errors import LostxError
 from lostx.core.localizer import Localizer
 
 from . import wire
 from .errors import ProtocolError, StreamError
 from .history import HISTORY_LIMITS, serve_history
 from .journal import Journal, JournalError
-from .journal_writer import JournalWriter
+from .journal_writer import RETRY_S, JournalWriter
 from .messages import Ack, ErrorMessage, Hello, JournalInfo, Limits, Ready, Stats, Tag
 from .schedule import FrameSchedule, frame_key
 from .sinks import Sink, close_sink
 from .sockets import (
     ServerKeys, apply_server_keys, bind, check_bind_endpoint, history_endpoint, keep_alive, start_authenticator,
 )
+from .states import SavedState, StateStore, unpack
 from .stats import ServiceCounters
-from .streams import StreamTable, check_time
+from .streams import StreamState, StreamTable, check_time
 from .worker import Answer, Job, Worker
 
 READ_BATCH = 10_000
@@ -140,6 +147,11 @@ class LocalizerService:
         self.streams = StreamTable(new_localizer, self.config.max_streams, self.config.stream_expiry,
                                    self.config.max_streams_per_peer)
         self.journal: Journal | None = None
+        self._states: StateStore | None = None
+        self._saved: dict[str, SavedState] = {}  # streams of the previous service not seen again yet
+        self._unsaved: set[str] = set()  # streams whose state cannot be saved (said once each)
+        self._journal_failing = False
+        self._refused_from: dict[str, int] = {}  # streams with frames refused while the journal failed: the first
         self.endpoints: tuple[str, str] | None = None
         """The frames and results endpoints as bound."""
         self.history_endpoint: str | None = None
@@ -223,12 +235,13 @@ class LocalizerService:
             wake_endpoint = f"inproc://lostx-wake-{self.session}"
             self._wake = self._context.socket(zmq.PAIR)
             self._wake.bind(wake_endpoint)
-            self._worker = Worker(self.sinks, self._context, wake_endpoint, self.log)
-            if self.journal is not None:
+            self._worker = Worker(self.sinks, self._context, wake_endpoint, self.log,
+                                  save_states=self.journal is not None)
+            if self.journal is not None and self._states is not None:
                 journal_endpoint = f"inproc://lostx-journal-{self.session}"
                 self._journal_wake = self._context.socket(zmq.PAIR)
                 self._journal_wake.bind(journal_endpoint)
-                self._writer = JournalWriter(self.journal, self._context, journal_endpoint)
+                self._writer = JournalWriter(self.journal, self._states, self._context, journal_endpoint)
         except BaseException:
             self.close()
             raise
@@ -239,13 +252,27 @@ class LocalizerService:
         assert cfg.journal is not None
         self.journal = Journal(cfg.journal, segment_bytes=cfg.journal_segment_bytes,
                                max_bytes=cfg.journal_max_bytes, fsync=cfg.journal_fsync)
+        self._states = StateStore(cfg.journal, cfg.journal_fsync)
+        durable = self._states.durable()
+        if durable is not None:
+            # Answers of a batch the previous service never completed were neither acknowledged nor published:
+            # they go, and their frames, sent again, are answered from the states that go with the journal.
+            self.journal.cut_after(durable)
+        self._saved = self._states.recover(self.journal.last)
         self._next_seq = self.journal.last + 1
         self._durable = self.journal.committed
+        self._published_seq = self.journal.last
         # Frames the previous service answered but whose acks it never sent come again: know them.
+        answers: dict[str, int] = {}
         for payload in self.journal.tail(JOURNAL_TAIL):
-            key = _journaled_key(payload)
-            if key is not None:
-                self._schedule.answered.add(key)
+            stream, frame_id, stream_seq = _journaled(payload)
+            if stream and isinstance(frame_id, int):
+                self._schedule.answered.add((stream, frame_id))
+            if stream in self._saved and isinstance(stream_seq, int):
+                answers[stream] = stream_seq
+        for stream, stream_seq in answers.items():  # answers after its state (refused frames) count too
+            saved = self._saved[stream]
+            self._saved[stream] = dataclasses.replace(saved, answers=max(saved.answers, stream_seq))
 
     def stop(self, reason: str = "stop requested") -> None:
         """Finish the frame in hand, flush, and return from :meth:`run`. Safe in signal handlers."""
@@ -432,11 +459,23 @@ class LocalizerService:
         key = frame_key(job.message) if self.lossless else None
         if self._writer is not None:
             # Journaled: acknowledged as soon as it is durable, whether or not a listener has it.
-            self._writer.write(seq, payload)
+            self._writer.write(seq, payload, self._saved_state(answer, seq))
             if reply is not None:
                 self._acks.append((seq, job.identity, reply, key))
             reply, key = None, None
         self._outgoing.append(_Outgoing(topic, payload, job.identity, reply, job.received, seq, key))
+
+    def _saved_state(self, answer: Answer, seq: int) -> SavedState | None:
+        state = answer.job.stream
+        if answer.state is not None:
+            return SavedState(state.name, seq, state.answers, state.last_timestamp, answer.state)
+        if answer.state_error and state.name not in self._unsaved:
+            assert self._writer is not None
+            self._unsaved.add(state.name)
+            self._writer.forget(state.name)  # an older state must not be taken up after a restart
+            self.log(f"stream {state.name!r}: its state is not saved ({answer.state_error}); after a restart of "
+                     f"the service it starts afresh")
+        return None
 
     def _collect_durable(self) -> None:
         assert self._journal_wake is not None and self._writer is not None
@@ -454,6 +493,14 @@ class LocalizerService:
             text = error.strerror if isinstance(error, OSError) else str(error)
             raise JournalError(f"cannot write the journal {self.config.journal}: {text}")
         self._durable = self._writer.durable
+        failure = self._writer.failure
+        if failure is not None and not self._journal_failing:
+            self.log(f"cannot write the journal {self.config.journal}: {failure}; new frames are refused "
+                     f"(journal_unwritable) and the answers not yet written wait, tried again every {RETRY_S:g} s")
+        elif failure is None and self._journal_failing:
+            self.log(f"the journal {self.config.journal} is written again (answers up to {self._durable}); "
+                     f"taking frames again")
+        self._journal_failing = failure is not None
 
     def _is_durable(self, seq: int) -> bool:
         return self._writer is None or seq <= self._durable
@@ -495,15 +542,29 @@ class LocalizerService:
             else:
                 self._waiting[identity] = message.version
             return
+        name = message.stream or ""
+        if self._refused_from or self._journal_failing:
+            if self._hold_back(identity, name, message.id):
+                return
+        new = name not in self.streams
+        if new and len(self.streams) >= self.streams.max_streams:
+            for gone in self.streams.expire(now):  # their saved states go with them
+                self._forget(gone)
+        held = {s.name for s in self.streams.held_by(identity)} if new else set()
         released = self.streams.released
         try:
-            state = self.streams.get(message.stream or "", now, identity)
+            state = self.streams.get(name, now, identity)
         except ProtocolError as exc:
             self._refuse(identity, exc.code, exc.text, message.id)
             return
-        if released == 0 and self.streams.released:  # then not again: a peer cannot flood the log
-            self.log(f"a producer holding {self.config.max_streams_per_peer} streams (max_streams_per_peer) started "
-                     f"stream {state.name!r}: its least recently used stream is forgotten")
+        if self.streams.released > released:
+            for gone in held - {s.name for s in self.streams.held_by(identity)}:
+                self._forget(gone)
+            if released == 0:  # then not again: a peer cannot flood the log
+                self.log(f"a producer holding {self.config.max_streams_per_peer} streams (max_streams_per_peer) "
+                         f"started stream {state.name!r}: its least recently used stream is forgotten")
+        if new and name in self._saved:
+            self._restore(state, self._saved.pop(name))
         self.counters.received += 1
         state.counts.received += 1
         self.counters.missing += state.saw(message.id)
@@ -512,6 +573,35 @@ class LocalizerService:
             self.counters.dropped += 1
             state.counts.dropped += 1
             state.in_service -= 1
+
+    def _hold_back(self, identity: bytes, name: str, frame_id: int) -> bool:
+        """Refuse the frame while the journal cannot be written (an answer that cannot be written could never be
+        acknowledged), and after that the stream's frames sent behind a refused one until it comes again: the
+        stream's frames are answered in their order."""
+        first = self._refused_from.get(name)
+        if self._journal_failing:
+            failure = self._writer.failure if self._writer is not None else ""
+            text = f"the journal cannot be written ({failure}); send it again later"
+        elif first is not None and frame_id > first:
+            text = f"frame {first} of this stream was refused and comes first; send this one again after it"
+        else:
+            self._refused_from.pop(name, None)
+            return False
+        self._refused_from[name] = frame_id if first is None else min(first, frame_id)
+        if len(self._refused_from) > 4 * MAX_STREAMS:  # a flood of stream ids: the oldest is let go
+            del self._refused_from[next(iter(self._refused_from))]
+        self._refuse(identity, "journal_unwritable", text, frame_id)
+        return True
+
+    def _restore(self, state: StreamState, saved: SavedState) -> None:
+        """Give a stream of the previous service its state back: its next answers are those it would have given."""
+        try:
+            state.localizer.restore(unpack(saved.localizer))
+        except (LostxError, ValueError, TypeError, KeyError) as exc:
+            state.localizer.reset()
+            self.log(f"stream {state.name!r}: its saved state does not fit ({exc}); starting it afresh")
+            return
+        state.answers, state.last_timestamp = saved.answers, saved.last_timestamp
 
     def _ready(self) -> Ready:
         window = self.config.window if self.lossless else 0
@@ -617,11 +707,21 @@ class LocalizerService:
             seq=self._published_seq, journal=journal, streams=self.streams.stats(now),
         )
 
+    def _forget(self, name: str) -> None:
+        self._unsaved.discard(name)
+        if self._writer is not None:
+            self._writer.forget(name)
+
     def _maybe_stats(self) -> None:
         now = time.monotonic()
         if now >= self._next_stats:
             self._next_stats = now + self.config.stats_interval
-            self.streams.expire(now)
+            for name in self.streams.expire(now):
+                self._forget(name)
+            if self._saved and now - self.counters.started > self.config.stream_expiry:
+                for name in list(self._saved):  # not seen since the restart: expired as any idle stream
+                    del self._saved[name]
+                    self._forget(name)
             self._publish_now(b"stats", wire.encode_stats(self.stats()))
 
     def _shutdown(self) -> Stats:
@@ -646,7 +746,8 @@ class LocalizerService:
                 if self._outgoing:
                     time.sleep(RETRY_MS / 1e3)
             if self._outgoing:
-                where = "; they are in the journal" if self.journal is not None else ""
+                kept = sum(self._is_durable(item.seq) for item in self._outgoing) if self.journal is not None else 0
+                where = f"; {kept} of them are in the journal" if kept else ""
                 self.log(f"{len(self._outgoing)} answer(s) not delivered within {self.config.linger:.1f} s{where}")
             final = self.stats(final=True)
             payload = wire.encode_stats(final)
@@ -662,7 +763,7 @@ class LocalizerService:
         return final
 
 
-def _journaled_key(payload: bytes) -> tuple[str, int] | None:
+def _journaled(payload: bytes) -> tuple[Any, Any, Any]:
+    """A journaled answer's stream, frame id and stream_seq."""
     message = msgpack.unpackb(payload, raw=False)
-    stream, frame_id = message.get("stream"), message.get("frame_id")
-    return (stream, frame_id) if stream and isinstance(frame_id, int) else None
+    return message.get("stream"), message.get("frame_id"), message.get("stream_seq")

@@ -173,6 +173,9 @@ class StreamTable:
     def __len__(self) -> int:
         return len(self._states)
 
+    def __contains__(self, name: object) -> bool:
+        return name in self._states
+
     def __iter__(self) -> Iterator[StreamState]:
         return iter(list(self._states.values()))
 

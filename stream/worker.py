@@ -25,6 +25,7 @@ from lostx.core.frame import Frame
 from .errors import ProtocolError
 from .messages import FrameMessage
 from .sinks import Sink
+from .states import pack
 from .streams import StreamState
 
 
@@ -49,16 +50,22 @@ class Answer:
     code: str = ""
     text: str = ""
     """Error code and text where there is no estimate."""
+    state: bytes | None = None
+    """The stream's localizer state after this frame, packed (where the worker saves states)."""
+    state_error: str = ""
+    """Why the state could not be saved (then ``state`` is None)."""
 
 
 class Worker(threading.Thread):
     """Answers one job at a time; posts each answer, then an idle notice, and wakes the I/O loop."""
 
     def __init__(self, sinks: Sequence[Sink], context: zmq.Context, wake_endpoint: str,
-                 log: Callable[[str], None]) -> None:
+                 log: Callable[[str], None], save_states: bool = False) -> None:
         super().__init__(name="lostx-worker", daemon=True)
         self.sinks = list(sinks)
         self.log = log
+        self.save_states = save_states
+        """Pack each stream's localizer state after every frame (a service with a journal)."""
         self.jobs: queue.Queue[Job | None] = queue.Queue(maxsize=1)
         self.answers: queue.Queue[Answer | None] = queue.Queue()
         """Answers in order; ``None`` means the worker is idle again (sinks done)."""
@@ -78,6 +85,8 @@ class Worker(threading.Thread):
                 if job is None:
                     return
                 answer = self._answer(job)
+                if self.save_states:
+                    self._save_state(answer)
                 self._post(answer)
                 if answer.estimate is not None and answer.frame is not None:
                     self._run_sinks(answer.frame, answer.estimate)
@@ -110,6 +119,14 @@ class Worker(threading.Thread):
             # The error carries the frame id in its own field, so the text goes without it.
             text = (str(exc) or type(exc).__name__).removeprefix(f"frame {message.id}: ")
             return Answer(job, frame, code="localizer_failed", text=text)
+
+    @staticmethod
+    def _save_state(answer: Answer) -> None:
+        # Packed here, off the I/O loop: over a large map a state is megabytes.
+        try:
+            answer.state = pack(answer.job.stream.localizer.state())
+        except LostxError as exc:
+            answer.state_error = str(exc)
 
     def _run_sinks(self, frame: Frame, estimate: Estimate) -> None:
         for sink in self.sinks:

@@ -34,6 +34,8 @@ MEASURED = {
     "sequence": {0: (0.511, 0.872, 0.831), 1: (0.612, 0.884, 0.844), 2: (0.695, 0.892, 0.852)},
     "sequence+tracker": {0: (0.522, 0.875, 0.868), 1: (0.643, 0.889, 0.889), 2: (0.697, 0.904, 0.904)},
     "sequence+tracker, index": {0: (0.56, 0.869, 0.853), 1: (0.619, 0.881, 0.876), 2: (0.714, 0.891, 0.891)},
+}
+
 
 @pytest.fixture(scope="module")
 def summer_map(tmp_path_factory, nordland) -> ReferenceMap:

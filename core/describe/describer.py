@@ -121,3 +121,10 @@ class TrailingMeans:
         mus = np.stack([m for m, _ in self._recent])
         present = np.stack([p for _, p in self._recent])
         return window_means(mus, present)[0]
+
+    def state(self) -> dict:
+        return {"recent": [[means, present] for means, present in self._recent]}
+
+    def restore(self, state: dict) -> None:
+        self._recent.clear()
+        self._recent.extend((np.asarray(m), np.asarray(p)) for m, p in state["recent"])

@@ -161,3 +161,10 @@ class RunningStandardiser:
         mean = self._sum / self._n
         std = np.sqrt(np.maximum(self._sumsq / self._n - mean**2, 0.0))
         return standardise(descriptor, mean.astype(np.float32), std.astype(np.float32))
+
+    def state(self) -> dict:
+        return {"n": self._n, "sum": self._sum, "sumsq": self._sumsq, "seen": self.seen}
+
+    def restore(self, state: dict) -> None:
+        self._n, self.seen = float(state["n"]), int(state["seen"])
+        self._sum, self._sumsq = np.array(state["sum"], dtype=np.float64), np.array(state["sumsq"], dtype=np.float64)

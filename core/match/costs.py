@@ -33,6 +33,7 @@ import time
 
 import numpy as np
 
+from ..errors import StateError
 from .scores import MapScores
 from .search import top_k
 
@@ -95,6 +96,16 @@ class RingCosts:
         row = self._ring[t % self.length]
         return np.zeros(0, dtype=np.int64) if np.isnan(row).all() else top_k(row, k)
 
+    def state(self) -> dict:
+        return {"ring": self._ring}
+
+    def restore(self, state: dict) -> None:
+        ring = np.asarray(state["ring"], dtype=np.float32)
+        if ring.shape != self._ring.shape:
+            raise StateError(f"saved costs of {ring.shape[1]} map frames x {ring.shape[0]} frames, this map and "
+                             f"window have {self.n_refs} x {self.length}")
+        self._ring = ring.copy()
+
 
 class EveryFrameCosts(RingCosts):
     """Contrast-normalised, hub-suppressed costs of every map frame, computed as each frame arrives."""
@@ -113,6 +124,13 @@ class EveryFrameCosts(RingCosts):
         costs = None if scores is None else self.hubs.every(contrast_normalise(scores.every(), self.window))
         super().add(t, costs)
         self.seconds += time.perf_counter() - start
+
+    def state(self) -> dict:
+        return {**super().state(), "hubs": self.hubs.state()}
+
+    def restore(self, state: dict) -> None:
+        super().restore(state)
+        self.hubs.restore(state["hubs"])
 
 
 class HubNormaliser:
@@ -144,6 +162,14 @@ class HubNormaliser:
         np.add.at(self._sum, r, c)
         np.add.at(self._sumsq, r, c * c)
         return self._standardised(refs, costs)
+
+    def state(self) -> dict:
+        return {"count": self._count, "sum": self._sum, "sumsq": self._sumsq}
+
+    def restore(self, state: dict) -> None:
+        if len(state["count"]) != len(self._count):
+            raise StateError(f"saved statistics of {len(state['count'])} map frames, this map has {len(self._count)}")
+        self._count, self._sum, self._sumsq = (np.array(state[k], dtype=np.float64) for k in ("count", "sum", "sumsq"))
 
     def _standardised(self, refs: np.ndarray | slice, costs: np.ndarray) -> np.ndarray:
         n = self.prior + self._count[refs]
@@ -238,6 +264,14 @@ class LookedUpCosts:
         row = t % self.length
         self.cells.clear(row)
         self._frames[row] = scores
+
+    def state(self) -> dict:
+        # The window's frames keep their search (a closure over the index) to score cells on demand.
+        raise StateError(f"costs looked up where the filter looks (a map of {self.n_refs} frames, sequence.costs) "
+                         f"do not carry over")
+
+    def restore(self, state: dict) -> None:
+        raise StateError("costs looked up where the filter looks do not carry over")
 
     def known(self, times: np.ndarray, refs: np.ndarray) -> np.ndarray:
         """The costs computed so far at (times, refs) (broadcast together; refs on the map), NaN elsewhere:

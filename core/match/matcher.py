@@ -18,7 +18,7 @@ from ..describe.describer import LostDescriber, TrailingMeans
 from ..describe.keypoints import KeypointEvidence
 from ..describe.lost import RunningStandardiser
 from ..describe.thumbnail import ThumbnailDescriber
-from ..errors import InputError, MapError
+from ..errors import InputError, MapError, StateError
 from ..frame import HEADINGS, Camera, Frame, Heading
 from ..images import check_frame
 from ..layout.classes import LayoutClasses
@@ -254,6 +254,23 @@ class PlaceMatcher:
         if self._placer is not None and self._live is not None:
             self._placer.reset()
             self._live.reset()
+
+    def state(self) -> dict:
+        """The query statistics that carry from frame to frame (LoST maps), as plain values and arrays."""
+        if self._placer is not None and self.layout_off is None:  # the layout takes part: it gathers frames
+            raise StateError("the layout's gathered frames and the stream's motion do not carry over")
+        lost = isinstance(self.describer, LostDescriber)
+        return {"normaliser": self.normaliser.state() if lost else None, "means": self.means.state() if lost else None,
+                "layout_off": self.layout_off}
+
+    def restore(self, state: dict) -> None:
+        self.reset()
+        if isinstance(self.describer, LostDescriber) != (state["normaliser"] is not None):
+            raise StateError("a saved state of another kind of map (LoST or thumbnail)")
+        if state["normaliser"] is not None:
+            self.normaliser.restore(state["normaliser"])
+            self.means.restore(state["means"])
+        self.layout_off = state["layout_off"]
 
     def match(self, frame: Frame | np.ndarray, camera: Camera | None = None) -> FrameMatch:
         """Match one frame (or a bare image from the ``camera`` it declares) under both heading hypotheses."""

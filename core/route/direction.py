@@ -30,7 +30,12 @@ class DirectionFilter:
 
     @property
     def belief(self) -> np.ndarray:
+        """P(rising), P(falling)."""
         return self._filter.belief
+
+    def restore(self, belief: np.ndarray) -> None:
+        """Continue from a :attr:`belief`."""
+        self._filter.reset(np.asarray(belief, dtype=np.float64))
 
     def update(self, rising: float, falling: float) -> tuple[int, float]:
         """Add one frame's best rising and best falling trajectory scores (lower is better; inf: none).

@@ -82,6 +82,13 @@ class HeadingFilter:
             return self._filter.answer()  # type: ignore[return-value]
         return self._filter.update(vote)  # type: ignore[return-value]
 
+    def state(self) -> dict:
+        return {"belief": self._filter.belief, "declared": self._declared}
+
+    def restore(self, state: dict) -> None:
+        self._filter.reset(np.asarray(state["belief"], dtype=np.float64))
+        self._declared = state["declared"]
+
 
 def _prior(declared: Heading, strength: float) -> np.ndarray:
     belief = np.full(len(HEADINGS), 1.0 - strength)

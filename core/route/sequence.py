@@ -40,6 +40,8 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from ..errors import StateError
+
 
 def signed(magnitudes: tuple[float, ...], stopped: bool) -> np.ndarray:
     """Speeds of both signs for the given magnitudes (a reference index rising or falling), plus 0
@@ -70,6 +72,12 @@ class WindowCosts(Protocol):
 
     def reset(self) -> None:
         """Forget every frame."""
+
+    def state(self) -> dict:
+        """What carries from frame to frame, as plain values and arrays."""
+
+    def restore(self, state: dict) -> None:
+        """Continue from :meth:`state`."""
 
 
 @dataclass
@@ -319,3 +327,30 @@ class SequenceFilter:
         costs[inside] = self.costs.known(np.broadcast_to(times[:, None], cells.shape)[inside], cells[inside])
         refs[inside] = cells[inside]
         return costs, refs
+
+    def state(self) -> dict:
+        """Everything that carries from frame to frame (the window, its trajectories and costs), as plain values
+        and arrays: :meth:`restore` on a filter made with the same settings continues exactly."""
+        best = self._best_result
+        return {
+            "t": self._t, "times": list(self._times), "progress": list(self._progress),
+            "anchor_t": self._anchor_t, "anchor_q": self._anchor_q, "anchor_r": self._anchor_r,
+            "speed": self._speed, "costs": self._costs, "window_costs": self.costs.state(),
+            "best": None if best is None else [best.position, best.speed, best.score, best.frames, best.trajectory],
+        }
+
+    def restore(self, state: dict) -> None:
+        if state["costs"].shape[1:] != (self.length,):
+            raise StateError(f"a saved sequence window of {state['costs'].shape[1:]} frames, this one holds "
+                             f"{self.length}")
+        self.costs.restore(state["window_costs"])
+        self._t = int(state["t"])
+        self._times = deque(int(t) for t in state["times"])
+        self._progress = deque(float(q) for q in state["progress"])
+        self._anchor_t, self._anchor_q = state["anchor_t"].astype(np.int64), state["anchor_q"].astype(np.float64)
+        self._anchor_r, self._speed = state["anchor_r"].astype(np.float64), state["speed"].astype(np.float64)
+        self._costs = state["costs"].astype(np.float64)
+        best = state["best"]
+        self._best_result = None if best is None else SequenceResult(float(best[0]), float(best[1]), float(best[2]),
+                                                                     int(best[3]), np.asarray(best[4]))
+

@@ -123,6 +123,26 @@ class RouteTracker:
         """The last ``relocalise_after`` rejected answers move together, as one vehicle would."""
         return _together(self._rejected, self.config.relocalise_after, self.config.position_sigma)
 
+    def state(self) -> dict:
+        """The track (position and speed with their covariance, None while not tracking), whether a confident
+        answer confirmed it, the misses, the rejected answers and those not yet tracked, as plain values and
+        arrays."""
+        return {"x": None if self.kf is None else self.kf.x, "P": None if self.kf is None else self.kf.P,
+                "confirmed": self.confirmed, "misses": self.misses, "rejected": [list(r) for r in self._rejected],
+                "untracked": [list(r) for r in self._untracked]}
+
+    def restore(self, state: dict) -> None:
+        self.reset()
+        if state["x"] is not None:
+            self._start(0.0, 0.0)
+            assert self.kf is not None
+            self.kf.x = np.asarray(state["x"], dtype=np.float64).reshape(2, 1)
+            self.kf.P = np.asarray(state["P"], dtype=np.float64).reshape(2, 2)
+        self.confirmed = bool(state["confirmed"])
+        self.misses = int(state["misses"])
+        self._rejected.extend((float(p), float(v)) for p, v in state["rejected"])
+        self._untracked.extend((float(p), float(v)) for p, v in state["untracked"])
+
 
 def _together(answers: deque[tuple[float, float]], count: int, position_sigma: float) -> bool:
     """The last ``count`` (position, speed) answers move together: each advanced from the one before by its

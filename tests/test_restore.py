@@ -1,0 +1,284 @@
+"""A service that is killed and started again carries on, and one whose journal cannot be written stays up.
+
+Real Nordland frames over the thumbnail map of the summer traverse, with the
+sequence filter on: a stream's answers depend on the frames before it, so an
+answer after a restart equals the uninterrupted one only if the whole state
+came back.
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+import threading
+import time
+from pathlib import Path
+
+import msgpack
+import numpy as np
+import pytest
+import zmq
+
+from lostx.core.config import Config, StreamConfig
+from lostx.core.errors import InputError
+from lostx.core.localizer import Localizer
+from lostx.core.outputs import check_output_folder
+from lostx.replay.folder import folder_traverse
+from lostx.stream import journal as journal_module
+from lostx.stream import messages, states as states_module, wire
+from lostx.stream.journal import Journal
+from lostx.stream.messages import Limits
+from lostx.stream.producer import FramePublisher
+from lostx.stream.service import LocalizerService
+from lostx.stream.states import SavedState, StateFileError, StateStore, pack, unpack
+from lostx.stream.streams import localizer_factory
+
+from streamtools import (  # noqa: F401  (fixtures)
+    Collector, endpoints, free_port, link_frames, lostx_command, procs, read_jsonl, thumb_map, wait_for,
+)
+
+FRAMES = 100
+
+
+@pytest.fixture(scope="module")
+def winter100(tmp_path_factory, nordland) -> Path:
+    return link_frames(sorted((nordland / "winter").iterdir())[:FRAMES], tmp_path_factory.mktemp("winter100"))
+
+
+@pytest.fixture(scope="module")
+def uninterrupted(thumb_map, winter100) -> list[dict]:
+    """What ``lostx match --sequence`` answers: one localizer over the frames in order, in this process."""
+    localizer = Localizer(thumb_map)
+    return [localizer.step(frame).summary() for frame in folder_traverse(winter100)]
+
+
+def same(got: dict, expected: dict) -> bool:
+    keys = ("frame_id", "state", "match_index", "single_match_index", "heading", "window", "warming_up")
+    return all(got[k] == expected[k] for k in keys) and all(
+        got[k] == pytest.approx(expected[k], abs=1e-9) for k in ("confidence", "score", "speed"))
+
+
+# -- the localizer's state ------------------------------------------------------------------------
+
+
+def test_a_restored_localizer_answers_as_the_one_that_went_on(thumb_map, winter100, uninterrupted):
+    frames = list(folder_traverse(winter100))
+    before = Localizer(thumb_map)
+    for frame in frames[:37]:  # the tracker is following by now, the window full
+        before.step(frame)
+    assert before.tracker.tracking and before.sequence.full
+    packed = pack(before.state())
+    after = Localizer(thumb_map)
+    after.restore(unpack(packed))
+    answers = [after.step(frame).summary() for frame in frames[37:]]
+    assert all(same(a, e) for a, e in zip(answers, uninterrupted[37:]))
+    fresh = Localizer(thumb_map)  # what the service did before: the stream started afresh
+    differ = sum(not same(fresh.step(frame).summary(), e) for frame, e in zip(frames[37:], uninterrupted[37:]))
+    assert differ >= 20  # at least the new window's warm-up
+
+
+def test_a_state_over_another_map_is_refused(thumb_map, winter100):
+    localizer = Localizer(thumb_map)
+    localizer.step(next(iter(folder_traverse(winter100))))
+    state = unpack(pack(localizer.state()))
+    state["map_frames"] = 10
+    with pytest.raises(Exception, match="a saved state over a map of 10 frames, this map has 3576"):
+        Localizer(thumb_map).restore(state)
+
+
+def test_states_pack_arrays_exactly_and_nothing_executable():
+    state = {"a": np.arange(12, dtype=np.float32).reshape(3, 4), "b": [np.int64(7), None, 0.5],
+             "c": np.array([[True, False]])}
+    back = unpack(pack(state))
+    assert back["a"].dtype == np.float32 and back["a"].shape == (3, 4) and (back["a"] == state["a"]).all()
+    assert back["b"] == [7, None, 0.5] and back["c"].dtype == bool
+    costs = np.array([[0.1, np.nan], [np.inf, 2.0]])  # float64 holding a value float32 does not: kept whole
+    wide = unpack(pack({"x": costs, "y": costs.astype(np.float32).astype(np.float64)}))
+    assert wide["x"].dtype == wide["y"].dtype == np.float64
+    assert np.array_equal(wide["x"], costs, equal_nan=True) and wide["x"][0, 0] == 0.1
+    assert len(pack(np.zeros(1000))) < 4100 < len(pack(np.full(1000, 0.1)))
+    with pytest.raises(TypeError, match="holds a object, which does not pack"):
+        pack({"x": object()})
+    forged = msgpack.packb(msgpack.ExtType(1, msgpack.packb(["|O", [1], b"\0" * 8])))
+    with pytest.raises(StateFileError, match="an array of objects"):
+        unpack(forged)
+
+
+def test_answers_and_states_of_an_incomplete_batch_are_cut_off_on_opening(tmp_path):
+    def state(stream: str, seq: int) -> SavedState:
+        return SavedState(stream, seq, seq, float(seq), f"{stream}{seq}".encode())
+
+    with Journal(tmp_path) as journal:
+        store = StateStore(tmp_path)
+        for seq in (1, 2, 3):
+            journal.append(seq, b"answer %d" % seq)
+        journal.commit()
+        store.write([state("a", 2), state("b", 3)])
+        store.complete(3)
+        for seq in (4, 5):  # the next batch: killed after its answers and one state, before it completed
+            journal.append(seq, b"answer %d" % seq)
+        journal.commit()
+        store.write([state("a", 5)])
+    with Journal(tmp_path) as journal:
+        store = StateStore(tmp_path)
+        assert store.durable() == 3
+        journal.cut_after(3)
+        assert (journal.last, journal.read(0, 10, 1 << 20)) == (3, [b"answer 1", b"answer 2", b"answer 3"])
+        assert store.recover(3) == {"a": state("a", 2), "b": state("b", 3)}
+        journal.append(4, b"again")  # the journal goes on from the cut
+        journal.commit()
+    assert len(list((tmp_path / "states").glob("*.state"))) == 2
+
+
+# -- restart mid-stream ---------------------------------------------------------------------------
+
+
+def test_a_service_killed_mid_stream_carries_on_as_if_it_had_not_been(thumb_map, winter100, uninterrupted, procs,
+                                                                        tmp_path):
+    frames, results = endpoints("tcp", tmp_path)
+    history = f"tcp://127.0.0.1:{free_port()}"
+    jsonl = tmp_path / "listen.jsonl"
+    service = lostx_command("serve", "--map", str(thumb_map.path), "--frames", frames, "--results", results,
+                            "--mode", "lossless", "--journal", str(tmp_path / "journal"), "--history", history,
+                            "--stats-interval", "0.2")
+    procs.start("listen", lostx_command("listen", results, "--history", history, "--jsonl", str(jsonl),
+                                        "--count", str(FRAMES)))
+    procs.start("replay", lostx_command("replay", str(winter100), "--to", frames, "--quiet", "--wait", "60",
+                                        "--rate", "40", "--stream", "train-1"))
+    first = procs.start("serve", service)
+    wait_for(lambda: len(read_jsonl(jsonl)) >= 35, 60, "35 answers from the first service")
+    first.kill()  # SIGKILL: no flushing, no goodbye
+    first.wait(10)
+    stats = Collector(results, topics=("stats",))
+    try:
+        procs.start("serve-again", service)
+        assert procs.processes["replay"].wait(120) == 0
+        assert procs.processes["listen"].wait(60) == 0
+    finally:
+        stats.stop()
+    rows = read_jsonl(jsonl)
+    assert [r["frame_id"] for r in rows] == list(range(FRAMES)) and [r["seq"] for r in rows] == list(range(1, 101))
+    sessions = list(dict.fromkeys(r["session"] for r in rows))
+    assert len(sessions) == 2
+    before = sum(r["session"] == sessions[0] for r in rows)
+    assert before >= 35 and FRAMES - before >= 30
+    wrong = [r["frame_id"] for r, e in zip(rows, uninterrupted) if not same(r, e)]
+    assert wrong == []
+    # The restarted service's stats count on from the journal's last answer, before it answers anything.
+    assert stats.stats[0].session == sessions[1] and stats.stats[0].seq >= before
+    assert [r["stream_seq"] for r in rows] == list(range(1, 101))
+
+
+# -- a journal that cannot be written -------------------------------------------------------------
+
+
+def test_a_full_disk_refuses_frames_keeps_serving_and_loses_nothing_once_freed(thumb_map, winter100, uninterrupted,
+                                                                               tmp_path, monkeypatch):
+    full = threading.Event()
+    write_all, write_whole = journal_module._write_all, states_module._write_whole
+
+    def journal_write(fd: int, data: bytes) -> None:
+        if full.is_set():
+            os.write(fd, data[: len(data) // 2])  # a record cut short, as a disk filling up leaves it
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        write_all(fd, data)
+
+    def state_write(path: Path, data: bytes, fsync: bool) -> None:
+        if full.is_set():
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        write_whole(path, data, fsync)
+
+    monkeypatch.setattr(journal_module, "_write_all", journal_write)
+    monkeypatch.setattr(states_module, "_write_whole", state_write)
+    source = list(folder_traverse(winter100))[:60]
+    frames_at, results_at = endpoints("ipc", tmp_path)
+    config = StreamConfig(frames=frames_at, results=results_at, mode="lossless", journal=tmp_path / "journal",
+                          stats_interval=0.1)
+    logs: list[str] = []
+    service = LocalizerService(localizer_factory(thumb_map, Config()), config, log=logs.append)
+    listener = Collector(results_at)
+    seen: dict[str, object] = {}
+
+    def while_full(publisher: FramePublisher) -> None:
+        wait_for(lambda: any("cannot write the journal" in line for line in logs), 30, "the failure reported")
+        stats_before = len(listener.stats)
+        seen["history"] = _fetch(service.history_endpoint, after=0)
+        with FramePublisher(frames_at, stream="another") as another:  # a robot that comes along meanwhile
+            another.wait_ready(10)
+            another.send(source[0], timeout=10)
+            wait_for(lambda: not another.flush(0.2) and another.counts.refused >= 1, 10, "its frame refused")
+            seen["refused"] = [(e.code, e.frame_id) for e in another.errors]
+            time.sleep(1.0)
+            seen["stats"] = len(listener.stats) - stats_before
+            seen["acked"], seen["committed"] = publisher.counts.acked, service.journal.committed
+            full.clear()
+            seen["another"] = another.flush(30)  # sent again, and answered
+
+    with service:
+        thread = threading.Thread(target=service.run, daemon=True)
+        thread.start()
+        try:
+            with FramePublisher(frames_at, stream="cam") as publisher:
+                publisher.wait_ready(30)
+                for frame in source[:20]:
+                    publisher.send(frame, timeout=30)
+                assert publisher.flush(30)
+                full.set()
+                freer = threading.Thread(target=while_full, args=(publisher,), daemon=True)
+                freer.start()
+                for frame in source[20:]:
+                    publisher.send(frame, timeout=60)
+                assert publisher.flush(60)
+                freer.join(60)
+            wait_for(lambda: len(listener.results) == 61, 20, "61 results")
+            assert thread.is_alive()  # up throughout
+        finally:
+            service.stop("test over")
+            thread.join(30)
+            listener.stop()
+    assert seen["refused"] == [("journal_unwritable", 0)] and seen["another"]
+    # While the disk was full: the history still served, stats still went out, nothing acknowledged unwritten.
+    history = seen["history"]
+    assert isinstance(history, messages.History) and (history.first, history.last) == (1, 20)
+    assert seen["stats"] >= 5 and seen["acked"] == seen["committed"] == 20
+    # Once freed: every frame answered once, in order, as the uninterrupted localizer answers it.
+    cam = [r for r in listener.results if r.tag.stream == "cam"]
+    assert [r.frame_id for r in cam] == list(range(60))
+    assert [r.tag.seq for r in listener.results] == list(range(1, 62))
+    assert all(same(r.to_dict(), e) for r, e in zip(cam, uninterrupted))
+    with Journal(tmp_path / "journal") as kept:
+        journaled = [msgpack.unpackb(p) for p in kept.read(0, 100, 1 << 30)]
+    assert [a["frame_id"] for a in journaled if a["stream"] == "cam"] == list(range(60)) and len(journaled) == 61
+    assert sum("cannot write the journal" in line and "No space left on device" in line for line in logs) == 1
+    assert sum("is written again" in line for line in logs) == 1
+
+
+def _fetch(endpoint: str, after: int) -> messages.History:
+    context = zmq.Context()
+    dealer = context.socket(zmq.DEALER)
+    dealer.setsockopt(zmq.LINGER, 0)
+    dealer.connect(endpoint)
+    try:
+        dealer.send(wire.encode_fetch(messages.Fetch(after=after, max=100)))
+        assert dealer.poll(10_000)
+        return wire.decode_history(dealer.recv(), Limits())  # type: ignore[return-value]
+    finally:
+        dealer.close()
+        context.term()
+
+
+def test_a_read_only_journal_folder_is_named_so(tmp_path, monkeypatch):
+    folder = tmp_path / "journal"
+    folder.mkdir()
+    real_statvfs = os.statvfs
+
+    class ReadOnly:
+        def __init__(self, path):
+            self.f_flag = real_statvfs(path).f_flag | os.ST_RDONLY
+
+    monkeypatch.setattr(os, "access", lambda path, mode: False)
+    with pytest.raises(InputError, match="no permission"):
+        check_output_folder(folder, "--journal")
+    monkeypatch.setattr(os, "statvfs", ReadOnly)
+    with pytest.raises(InputError, match=r"--journal .* cannot be written into \(a read-only file system\)"):
+        check_output_folder(folder, "--journal")
