@@ -268,7 +268,8 @@ def build_map(
     if cluster is not None and n_frames is None:
         raise MapError("describing on a cluster needs a traverse that can be cut into ranges (a folder, a dataset)")
     checkpoint = BuildCheckpoint(out, _build_key(frames, kind, meta, info))
-    with MapWriter(out, kind, meta, backbone=info, overwrite=overwrite, spool=checkpoint.save) as writer:
+    with MapWriter(out, kind, meta, backbone=info, overwrite=overwrite, spool=checkpoint.save,
+                   verify=config.verify) as writer:
         saved = checkpoint.resume()
         for first, _, path in saved:
             writer.add_chunk(path, first)
