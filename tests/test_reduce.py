@@ -8,6 +8,7 @@ import json
 import numpy as np
 import pytest
 
+from backbonetools import lostx
 from lostx.core import LostDescriber, PlaceMatcher, ReferenceMap, build_map
 from lostx.core.backbones import BackboneInfo
 from lostx.core.config import Config, VerifyConfig
@@ -112,8 +113,11 @@ def test_a_wide_map_keeps_reduced_descriptors_and_verifies_like_the_whole_one(tm
     assert set(np.argsort(exact.scores)[:6]) == set(range(6))
 
 
-def test_reduced_evidence_needs_a_projected_query(tmp_path, rng):
+def test_reduced_evidence_needs_a_projected_query(tmp_path, rng, capsys):
     refmap = _map(tmp_path / "m", [_scene(rng, True) for _ in range(3)], VerifyConfig())
+    ran = lostx(capsys, "map", "info", refmap.path)
+    assert ran.code == 0 and "format version 2" in ran.out
+    assert "600 channels on a 8x12 grid, keypoint descriptors reduced to 64 dimensions" in ran.out
     query = frame_evidence(*_scene(rng, True))
     with pytest.raises(ValueError, match="query's keypoint descriptors have 600 dimensions, the references' 64"):
         verify(query, refmap.evidence([0, 1]), np.full(2, 0.5))
