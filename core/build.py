@@ -200,7 +200,8 @@ def describe_range(frames: Iterable[Frame] | FrameSource, start: int, stop: int 
         index = first + j
         if stop is not None and index >= stop:
             break
-        yield index, MapFrame(frame.name, describer.descriptor(desc, mu), desc.evidence, desc.appearance(),
+        # The evidence as a map stores it: the frame's whole features are not held until its chunk is packed.
+        yield index, MapFrame(frame.name, describer.descriptor(desc, mu), desc.evidence.sparse(), desc.appearance(),
                               frame.position, frame.timestamp, looks(frame.image),
                               label_frequencies(desc.labels, n_labels), frame.camera,
                               layout=pack(grid) if grid is not None else None,

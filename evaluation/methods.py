@@ -170,7 +170,9 @@ def query_descriptions(traverse: Traverse, matcher: PlaceMatcher, cache: Path, c
     out = []
     for frame in tqdm(traverse, total=len(traverse), desc="describing queries", unit="frame",
                       disable=not progress, leave=False):
-        out.append(matcher.describe(frame, appearance=True))
+        described = matcher.describe(frame, appearance=True)
+        # Kept as the cache stores it (not the frame's whole features): the same on a first run and a cached one.
+        out.append(dataclasses.replace(described, evidence=described.evidence.sparse()))
     _save_descriptions(path, out)
     return out
 
