@@ -7,8 +7,8 @@ import json
 
 import numpy as np
 import pytest
-
 from backbonetools import lostx
+
 from lostx.core import LostDescriber, PlaceMatcher, ReferenceMap, build_map
 from lostx.core.backbones import BackboneInfo
 from lostx.core.config import Config, VerifyConfig
