@@ -210,7 +210,8 @@ def describe_range(frames: Iterable[Frame] | FrameSource, start: int, stop: int 
         index = first + j
         if stop is not None and index >= stop:
             break
-        yield index, MapFrame(frame.name, describer.descriptor(desc, mu), desc.evidence, desc.appearance(),
+        # The evidence as a map stores it: the frame's whole features are not held until its chunk is packed.
+        yield index, MapFrame(frame.name, describer.descriptor(desc, mu), desc.evidence.sparse(), desc.appearance(),
                               frame.position, frame.timestamp, looks(frame.image),
                               label_frequencies(desc.labels, n_labels), frame.camera,
                               layout=pack(grid) if grid is not None else None,
@@ -278,7 +279,8 @@ def build_map(
     if cluster is not None and n_frames is None:
         raise MapError("describing on a cluster needs a traverse that can be cut into ranges (a folder, a dataset)")
     checkpoint = BuildCheckpoint(out, _build_key(frames, kind, meta, info))
-    with MapWriter(out, kind, meta, backbone=info, overwrite=overwrite, spool=checkpoint.save) as writer:
+    with MapWriter(out, kind, meta, backbone=info, overwrite=overwrite, spool=checkpoint.save,
+                   verify=config.verify) as writer:
         saved = checkpoint.resume()
         for first, _, path in saved:
             writer.add_chunk(path, first)

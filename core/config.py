@@ -118,6 +118,13 @@ class VerifyConfig:
     uniqueness_exclusion: int = 2
     """Confidence compares the best score with the best candidate more than this many
     reference frames away from it."""
+    reduce_above: int = 512
+    """A map built from features of more channels than this keeps its keypoint descriptors as ``reduced_dim``
+    coordinates on a projection learnt from its own descriptors (lostx.core.describe.reduce), and verification
+    compares them there: wide or dense features cost little and take few bytes. Narrower features (MOSAIC's
+    448, ESPNetv2's 512) are kept whole and exact. Read when a map is built; the map records the projection."""
+    reduced_dim: int = 64
+    """Dimensions the keypoint descriptors of a wide backbone are reduced to (see ``reduce_above``)."""
 
 
 @dataclass(frozen=True)
@@ -427,7 +434,8 @@ LIMITS: dict[str, dict[str, Bounds]] = {
         "coverage_frames": _AT_LEAST_0, "coverage_warning": Bounds(0, 1), "reference_window": _AT_LEAST_1,
         "query_window": _AT_LEAST_1, "prior_frames": _AT_LEAST_0,
     },
-    "verify": {"top_k": _AT_LEAST_1, "uniqueness_exclusion": _AT_LEAST_0},
+    "verify": {"top_k": _AT_LEAST_1, "uniqueness_exclusion": _AT_LEAST_0, "reduce_above": _AT_LEAST_1,
+               "reduced_dim": Bounds(1, 4096)},
     "search": {"index_min_frames": _AT_LEAST_1, "index_breadth": Bounds(1, 4096), "index_shortlist": Bounds(1, 4096)},
     "camera": {"hfov_deg": Bounds(0, 180, above=True), "view_hfov_deg": Bounds(0, 180, above=True),
                "ignore_top": Bounds(0, 0.9), "ignore_bottom": Bounds(0, 0.9)},

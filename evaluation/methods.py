@@ -41,6 +41,7 @@ from lostx.core.describe.describer import LostDescriber
 from lostx.core.errors import InputError, MapError
 from lostx.core.frame import Frame
 from lostx.core.describe.keypoints import KeypointEvidence
+from lostx.core.describe.reduce import reduced_dims
 from lostx.core.layout.grid import pack, unpack
 from lostx.core.localizer import Localizer
 from lostx.core.match.matcher import FrameMatch, MatchResult, PlaceMatcher, QueryDescription, uniqueness
@@ -131,7 +132,11 @@ def reference_maps(pair: DatasetPair, config: Config, cache: Path, methods: Sequ
     meta = {"camera": pair.reference.camera, "image_root": str(pair.reference.root.resolve())}
     if any(m in NETWORK_METHODS for m in methods):
         assert backbone is not None
-        key = _fingerprint(pair.reference, {"kind": "lost", **_settings_key(config, backbone)})
+        settings = {"kind": "lost", **_settings_key(config, backbone)}
+        reduced = reduced_dims(config.verify, backbone.info.feature_dim)
+        if reduced is not None:  # maps whose keypoint descriptors are kept whole keep their earlier key
+            settings["reduced_keypoints"] = reduced
+        key = _fingerprint(pair.reference, settings)
         maps["lost"] = _cached_map(cache / f"reference-lost-{key}", pair.reference, config,
                                    LostDescriber(backbone, config.lost), meta, progress, "describing references")
     if "thumbnail" in methods:
@@ -167,7 +172,9 @@ def query_descriptions(traverse: Traverse, matcher: PlaceMatcher, cache: Path, c
     out = []
     for frame in tqdm(traverse, total=len(traverse), desc="describing queries", unit="frame",
                       disable=not progress, leave=False):
-        out.append(matcher.describe(frame, appearance=True))
+        described = matcher.describe(frame, appearance=True)
+        # Kept as the cache stores it (not the frame's whole features): the same on a first run and a cached one.
+        out.append(dataclasses.replace(described, evidence=described.evidence.sparse()))
     _save_descriptions(path, out)
     return out
 

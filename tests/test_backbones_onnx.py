@@ -14,7 +14,7 @@ import pytest
 from backbonetools import lostx
 from lostx.core import LostDescriber, PlaceMatcher, ReferenceMap, build_map
 from lostx.core.backbones import load_backbone
-from lostx.core.backbones.graph import read_graph
+from lostx.core.backbones.graph import names_activation, read_graph
 from lostx.core.config import BackboneConfig
 from lostx.core.errors import ModelError
 from lostx.replay.folder import folder_traverse
@@ -142,3 +142,57 @@ def test_export_errors(exported, tmp_path, capsys):
     lostx(capsys, "backbones", "export-onnx", "--model", fake, "--out", tmp_path / "x.onnx").error_line(
         "fake.pth is not a PyTorch checkpoint")
     assert not (tmp_path / "x.onnx").exists() and not (tmp_path / "x.toml").exists()
+
+
+def _tiny_segmenter(path: Path) -> Path:
+    """A small ONNX segmenter shaped like DeepLabV3+ on MobileNetV2: at 1/16 of the input, a block's ReLU6
+    output (192 channels) feeds its linear projection (96 channels), which three decoder branches read."""
+    from onnx import TensorProto, helper, numpy_helper
+
+    rng = np.random.default_rng(0)
+    weights, nodes = [], []
+
+    def conv(name: str, source: str, out: int, into: int, kernel: int = 1, stride: int = 1) -> None:
+        weights.append(numpy_helper.from_array(
+            rng.standard_normal((out, into, kernel, kernel)).astype(np.float32) * 0.1, f"{name}_w"))
+        nodes.append(helper.make_node("Conv", [source, f"{name}_w"], [name], strides=[stride, stride],
+                                      pads=[kernel // 2] * 4 if stride == 1 else [0] * 4))
+
+    conv("stem", "image", 64, 3, kernel=16, stride=16)
+    nodes.append(helper.make_node("Relu", ["stem"], ["stem_relu"]))
+    conv("expand", "stem_relu", 192, 64)
+    weights += [numpy_helper.from_array(np.array(v, np.float32), n) for v, n in ((0.0, "low"), (6.0, "high"))]
+    nodes.append(helper.make_node("Clip", ["expand", "low", "high"], ["expand_relu6"]))
+    conv("project", "expand_relu6", 96, 192)
+    for branch, kernel in (("aspp_a", 1), ("aspp_b", 3), ("aspp_c", 1)):
+        conv(branch, "project", 16, 96, kernel=kernel)
+    nodes.append(helper.make_node("Concat", ["aspp_a", "aspp_b", "aspp_c"], ["aspp"], axis=1))
+    conv("logits_small", "aspp", 5, 48)
+    weights.append(numpy_helper.from_array(np.array([1, 1, 16, 16], np.float32), "scales"))
+    nodes.append(helper.make_node("Resize", ["logits_small", "", "scales"], ["logits"], mode="linear"))
+    graph = helper.make_graph(
+        nodes, "tiny", [helper.make_tensor_value_info("image", TensorProto.FLOAT, [1, 3, 128, 128])],
+        [helper.make_tensor_value_info("logits", TensorProto.FLOAT, [1, 5, 128, 128])], weights)
+    onnx.save(helper.make_model(graph, opset_imports=[helper.make_opsetid("", 13)]), path)
+    return path
+
+
+def test_inspect_prefers_the_activation_to_the_linear_projection_it_feeds(tmp_path, capsys):
+    model = _tiny_segmenter(tmp_path / "tiny.onnx")
+    graph = read_graph(model)
+    tensors = {t.name: t for t in graph.activations}
+    assert tensors["project"].readers == 3 and tensors["expand_relu6"].readers == 1  # the projection is read most
+    assert tensors["expand_relu6"].activation and tensors["stem_relu"].activation and not tensors["project"].activation
+    ran = lostx(capsys, "backbones", "inspect", model)
+    assert ran.code == 0, ran.err
+    assert 'features = "expand_relu6"  # 192 channels on a 8 x 8 grid' in ran.out
+    assert 'scores = "logits_small"  # 5 channels on a 8 x 8 grid' in ran.out
+
+
+@pytest.mark.parametrize("name, fused", [
+    ("MobilenetV2/expanded_conv_16/depthwise/Relu6", True), ("MobilenetV3/Conv_1/Relu", True),
+    ("block/hard_swish", True), ("MobilenetV2/expanded_conv_16/project/add_fold", False), ("decoder/add", False),
+    ("aspp/concat_projection/BatchNorm/FusedBatchNorm", False),
+])
+def test_a_fused_activation_is_told_by_the_tensor_name(name, fused):
+    assert names_activation(name) is fused

@@ -9,11 +9,18 @@ for a description, to be checked:
 * features: a map at 1/8 to 1/32 of the input with at least 64 channels: a
   graph output where there is one, else the one most operations read (the
   encoder's last map feeds every branch of the decoder's pyramid pooling),
-  the widest of those, the latest of those.
+  the widest of those, the latest of those. Where that map is a linear
+  projection (a MobileNetV2 block's last 1x1 convolution, without an
+  activation), the latest activation output on the same grid before it is
+  suggested instead: LoST's keypoints and descriptors come from post-ReLU
+  features (the paper's conv5). An activation is an operation such as ReLU, ReLU6,
+  sigmoid or hard-swish, or one fused with it (TFLite names the fused
+  tensor after it).
 """
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
@@ -26,6 +33,16 @@ from .description import Layout
 RESIZES = {"RESIZE_BILINEAR", "RESIZE_NEAREST_NEIGHBOR", "Resize", "Upsample"}
 MAX_CLASSES = 255
 """Labels are stored as uint8."""
+ACTIVATIONS = {
+    "RELU", "RELU6", "RELU_N1_TO_1", "RELU_0_TO_1", "LEAKY_RELU", "PRELU", "LOGISTIC", "TANH", "HARD_SWISH", "GELU",
+    "ELU", "Relu", "Clip", "PRelu", "LeakyRelu", "Sigmoid", "HardSigmoid", "HardSwish", "Elu", "Selu", "Celu", "Gelu",
+    "Mish", "Tanh", "Softplus", "ThresholdedRelu", "Swish",
+}
+"""Operations (TFLite's and ONNX's) whose output is a nonlinearity's."""
+ACTIVATION_NAME = re.compile(
+    r"(relu6?|relu_?n1_?to_?1|leaky_?relu|prelu|sigmoid|logistic|hard_?swish|swish|silu|gelu|elu|selu|tanh|mish|"
+    r"clip_by_value)(_\d+)?", re.IGNORECASE)
+"""The last part of a tensor name that says an activation was fused into the operation that produced it."""
 
 
 @dataclass(frozen=True)
@@ -36,6 +53,8 @@ class GraphTensor:
     dtype: str
     readers: int = 0
     """Operations that take it as an input."""
+    activation: bool = False
+    """Produced by an activation, or by an operation fused with one."""
 
 
 @dataclass(frozen=True)
@@ -105,10 +124,13 @@ def _tflite_graph(path: Path) -> ModelGraph:
         for i in op["inputs"]:
             readers[int(i)] = readers.get(int(i), 0) + 1
 
+    activated = {int(i) for op in ops for i in op["outputs"]
+                 if op["op_name"] in ACTIVATIONS or any(names_activation(n) for n in names_of(details[int(i)]["name"]))}
+
     def tensor(index: int) -> GraphTensor:
         d = details[index]
         return GraphTensor(shown[index], tuple(int(v) for v in d["shape"]), np.dtype(d["dtype"]).name,
-                           readers.get(index, 0))
+                           readers.get(index, 0), index in activated)
 
     activations = [tensor(int(i)) for op in ops for i in op["outputs"]]
     producers = {shown[int(o)]: (op["op_name"], shown[int(op["inputs"][0])] if len(op["inputs"]) else "")
@@ -136,15 +158,17 @@ def _onnx_graph(path: Path) -> ModelGraph:
         for name in node.input:
             readers[name] = readers.get(name, 0) + 1
 
+    activated = {name for node in graph.node if node.op_type in ACTIVATIONS for name in node.output}
+
     def tensor(info: onnx.ValueInfoProto) -> GraphTensor:
         kind = info.type.tensor_type
         shape = tuple(d.dim_value if d.HasField("dim_value") else None for d in kind.shape.dim)
         dtype = np.dtype(onnx.helper.tensor_dtype_to_np_dtype(kind.elem_type)).name if kind.elem_type else "unknown"
-        return GraphTensor(info.name, shape, dtype, readers.get(info.name, 0))
+        return GraphTensor(info.name, shape, dtype, readers.get(info.name, 0), info.name in activated)
 
     typed = {v.name: tensor(v) for v in [*graph.input, *graph.value_info, *graph.output]}
-    activations = [typed.get(name, GraphTensor(name, (), "unknown")) for node in graph.node for name in node.output
-                   if name]
+    activations = [typed.get(name, GraphTensor(name, (), "unknown", activation=name in activated))
+                   for node in graph.node for name in node.output if name]
     producers = {name: (node.op_type, node.input[0] if node.input else "") for node in graph.node
                  for name in node.output}
     return ModelGraph(
@@ -191,4 +215,14 @@ def _features(graph: ModelGraph, maps: list, output_names: set[str], scores: Gra
         return exported[-1][1]
     if not coarse:
         return None
-    return max(coarse, key=lambda item: (item[1].readers, item[2][2], item[0]))[1]
+    order, chosen, shape = max(coarse, key=lambda item: (item[1].readers, item[2][2], item[0]))
+    if chosen.activation:
+        return chosen
+    # A linear projection: the activation output on its grid just before it, where there is one.
+    activated = [item for item in coarse if item[1].activation and item[0] < order and item[2][:2] == shape[:2]]
+    return activated[-1][1] if activated else chosen
+
+
+def names_activation(name: str) -> bool:
+    """Whether a tensor name's last part names an activation (a converter's name for a fused one)."""
+    return ACTIVATION_NAME.fullmatch(name.rsplit("/", 1)[-1]) is not None

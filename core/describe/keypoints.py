@@ -5,14 +5,17 @@ correspondences per image pair. Many channels peak at the same few locations
 (about 245 distinct locations for 448 channels on MOSAIC's 32 x 32 grid), so a
 frame's evidence keeps the D-dim feature vectors only once per distinct
 keypoint location, its *slots*, and of each only the non-zero entries (ReLU
-features are about 90 % zeros), in compressed sparse rows.
+features are about 90 % zeros), in compressed sparse rows. Wide descriptors can be compared in
+fewer dimensions instead (:meth:`KeypointEvidence.projected`, lostx.core.describe.reduce).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
+
+from .reduce import project_rows
 
 NO_KEYPOINT = -1
 
@@ -22,7 +25,8 @@ def argmax_keypoints(features: np.ndarray) -> np.ndarray:
     (constant over the frame), which therefore has no keypoint."""
     flat = features.reshape(features.shape[0], -1)
     keypoints = flat.argmax(axis=1).astype(np.int32)
-    keypoints[flat.max(axis=1) <= flat.min(axis=1)] = NO_KEYPOINT
+    peak = np.take_along_axis(flat, keypoints[:, None].astype(np.int64), axis=1)[:, 0]
+    keypoints[peak <= flat.min(axis=1)] = NO_KEYPOINT
     return keypoints
 
 
@@ -33,9 +37,11 @@ class KeypointEvidence:
     Slot r is the distinct keypoint location ``slot_keys[r] = c * N + location``
     of frame c (sorted); its feature vector is sparse: channels
     ``channels[slot_offsets[r]:slot_offsets[r + 1]]`` hold ``values[...]``, the
-    other channels are zero. A live query keeps its slots dense instead
-    (``dense``; the sparse arrays are then empty): verification reads them densely,
-    and :meth:`sparse` converts where they are stored.
+    other channels are zero. A live query keeps its frame's whole features instead
+    (``frame_features``; the sparse arrays are then empty) and reads its slots from them
+    when asked (:meth:`dense_slots`, :meth:`projected`); :meth:`sparse` converts where
+    they are stored. Evidence compared in fewer dimensions keeps each slot as a unit
+    vector on the map's projection (``reduced``, k columns).
     """
 
     keypoints: np.ndarray  # (C, D) int32, -1 = no keypoint
@@ -47,7 +53,9 @@ class KeypointEvidence:
     slot_norms: np.ndarray  # (S,) float32 L2 norm of each slot's feature vector
     grid: tuple[int, int]
     feature_dim: int
-    dense: np.ndarray | None = None  # (S, D) float32 slot features, for evidence kept dense
+    dense: np.ndarray | None = None  # (S, D) float32 slot features, once read densely
+    frame_features: np.ndarray | None = None  # (D, N) float32 a single frame's whole features
+    reduced: np.ndarray | None = None  # (S, k) float32 unit slot vectors on a projection (lostx.core.describe.reduce)
 
     @property
     def n_frames(self) -> int:
@@ -66,18 +74,43 @@ class KeypointEvidence:
         """(S, D) float32 feature vectors of all slots."""
         if self.dense is not None:
             return self.dense
+        if self.frame_features is not None:
+            self.dense = np.ascontiguousarray(np.take(self.frame_features, self.slot_keys, axis=1).T)
+            return self.dense
         dense = np.zeros((len(self.slot_keys), self.feature_dim), dtype=np.float32)
         rows = np.repeat(np.arange(len(self.slot_keys)), np.diff(self.slot_offsets))
         dense[rows, self.channels] = self.values
         return dense
 
+    @property
+    def dims(self) -> int:
+        """Dimensions its slot features are compared in: the feature size, or k once projected."""
+        return int(self.reduced.shape[1]) if self.reduced is not None else self.feature_dim
+
+    def projected(self, projection: np.ndarray) -> "KeypointEvidence":
+        """The same evidence with each slot's features as a unit vector of its coordinates on ``projection``'s
+        (D, k) directions."""
+        if self.frame_features is not None and self.dense is None:
+            # Projecting the whole frame and keeping the slots' columns spares gathering their D-dim rows.
+            rows = np.ascontiguousarray((projection.T @ self.frame_features)[:, self.slot_keys].T)
+        else:
+            rows = project_rows(self.dense_slots(), projection)
+        norms = row_norms(rows)
+        return replace(self, slot_offsets=np.zeros(len(self.slot_keys) + 1, dtype=np.int64),
+                       channels=np.zeros(0, dtype=np.int32), values=np.zeros(0, dtype=np.float32),
+                       slot_norms=norms, dense=None, frame_features=None,
+                       reduced=rows / np.maximum(norms, 1e-30)[:, None])
+
     def sparse(self) -> "KeypointEvidence":
         """The same evidence with its slot features in compressed sparse rows."""
-        if self.dense is None:
+        if self.reduced is not None:
+            raise ValueError("projected keypoint evidence has no sparse form")
+        if self.dense is None and self.frame_features is None:
             return self
-        offsets, channels, values = sparse_slots(self.dense)
+        dense = self.dense_slots()
+        offsets, channels, values = sparse_slots(dense)
         return KeypointEvidence(self.keypoints, self.labels, self.slot_keys, offsets, channels, values,
-                                self.slot_norms, self.grid, self.feature_dim)
+                                np.linalg.norm(dense, axis=1).astype(np.float32), self.grid, self.feature_dim)
 
     @classmethod
     def stack(cls, frames: list["KeypointEvidence"]) -> "KeypointEvidence":
@@ -111,10 +144,9 @@ def sparse_slots(dense: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]
 def frame_evidence(features: np.ndarray, labels: np.ndarray) -> KeypointEvidence:
     """Evidence of one frame from its dense features (D, h, w) and grouped labels (h, w)."""
     d, h, w = features.shape
-    flat = features.reshape(d, h * w)
+    flat = np.ascontiguousarray(features.reshape(d, h * w), dtype=np.float32)
     keypoints = argmax_keypoints(flat)
     slots = np.unique(keypoints[keypoints >= 0]).astype(np.int64)
-    dense = np.ascontiguousarray(np.take(flat, slots, axis=1).T, dtype=np.float32)
     empty = np.zeros(0)
     return KeypointEvidence(
         keypoints=keypoints[None],
@@ -123,8 +155,13 @@ def frame_evidence(features: np.ndarray, labels: np.ndarray) -> KeypointEvidence
         slot_offsets=np.zeros(len(slots) + 1, dtype=np.int64),
         channels=empty.astype(np.int32),
         values=empty.astype(np.float32),
-        slot_norms=np.linalg.norm(dense, axis=1).astype(np.float32),
+        slot_norms=np.sqrt(np.einsum("dn,dn->n", flat, flat)[slots]).astype(np.float32),
         grid=(h, w),
         feature_dim=d,
-        dense=dense,
+        frame_features=flat,
     )
+
+
+def row_norms(rows: np.ndarray) -> np.ndarray:
+    """(S,) float32 L2 norm of each row of (S, k)."""
+    return np.sqrt(np.einsum("sk,sk->s", rows, rows)).astype(np.float32)

@@ -9,7 +9,13 @@ from typing import Any, Literal
 from ..backbones import BackboneInfo
 
 MAP_FORMAT = "lostx-map"
-MAP_VERSION = 1
+MAP_VERSION = 2
+"""The newest format. 1: keypoint descriptors kept whole; 2: also maps whose keypoint descriptors are reduced
+(a projection and each slot's coordinates on it). A map is written as the oldest version that holds it, so a
+map with whole descriptors still opens in a lostx that reads only version 1."""
+READABLE_VERSIONS = (1, 2)
+WHOLE_VERSION = 1
+"""The version of a map whose keypoint descriptors are kept whole."""
 MapKind = Literal["lost", "thumbnail"]
 
 

@@ -23,12 +23,14 @@ import numpy as np
 from numpy.lib.format import open_memmap
 
 from ..backbones import BackboneInfo
+from ..config import VerifyConfig
 from ..describe.inputcheck import Looks, ProfileBuilder
-from ..describe.keypoints import KeypointEvidence
+from ..describe.keypoints import KeypointEvidence, row_norms
 from ..describe.lost import DescriptorStats, standardise
+from ..describe.reduce import learn_projection, project_rows, reduced_dims, sample_rows
 from ..errors import MapError
 from ..outputs import check_output_folder
-from .format import MAP_FORMAT, MAP_VERSION, MapKind, backbone_dict
+from .format import MAP_FORMAT, MAP_VERSION, WHOLE_VERSION, MapKind, backbone_dict
 from .index import build_index, file_sha256
 
 CHUNK_FRAMES = 256
@@ -37,6 +39,10 @@ ROW_BLOCK = 8192
 """Frames per block of the streaming commit (about 90 MB of float64 LoST descriptors)."""
 EVIDENCE = ("keypoints", "labels", "frame_slots", "frame_entries", "slot_locations", "slot_counts", "slot_norms",
             "slot_channels", "slot_values")
+REDUCED = ("keypoints", "labels", "frame_slots", "slot_locations")
+"""The evidence arrays a map with reduced keypoint descriptors copies from its chunks as they are."""
+SLOT_BLOCK = 4096
+"""Slots projected at a time (16 MB of float32 features at 1,024 channels)."""
 
 
 @dataclass
@@ -183,10 +189,12 @@ class MapWriter:
         overwrite: bool = False,
         spool: Callable[[MapChunk], Path] | None = None,
         index: bool = True,
+        verify: VerifyConfig | None = None,
     ) -> None:
         """``spool``: where full chunks go (it saves one and says where; a build's checkpoint); chunks stay
         in memory without one. ``index``: build the approximate index (False: a map only ever searched
-        exactly, e.g. a benchmark's, whose search is timed apart; ``search.index = "on"`` refuses it)."""
+        exactly, e.g. a benchmark's, whose search is timed apart; ``search.index = "on"`` refuses it).
+        ``verify``: whether the keypoint descriptors are reduced, and to how many dimensions."""
         self.out = check_output_folder(out, "map folder")
         if self.out.exists() and not overwrite:
             raise MapError(f"{self.out} already exists; pass --overwrite to replace it")
@@ -198,6 +206,7 @@ class MapWriter:
         self.overwrite = overwrite
         self.spool = spool
         self.with_index = index
+        self.verify = verify or VerifyConfig()
         self.n_labels = len(metadata.get("label_names") or ())
         self._chunks: list[MapChunk | Path] = []
         self._starts: list[int] = []
@@ -283,7 +292,10 @@ class MapWriter:
                                                 lambda block: standardise(block, stats.mean, stats.std))
             files["stats_mean"] = _write_array(self._tmp / "stats_mean.npy", stats.mean)
             files["stats_std"] = _write_array(self._tmp / "stats_std.npy", stats.std)
-            files.update(self._evidence(chunks, heads))
+            dim = int(_load(chunks[0]).keypoints.shape[1])
+            reduced = reduced_dims(self.verify, dim)
+            files.update(self._evidence(chunks, heads) if reduced is None else
+                         self._reduced_evidence(chunks, heads, dim, reduced))
             if all(h["appearance"] for h in heads):
                 files["appearance"] = self._stream("appearance", chunks, (n, heads[0]["appearance_dim"]), np.float16)
         else:
@@ -313,7 +325,7 @@ class MapWriter:
             metadata["input"] = profile.to_dict()
         return {
             "format": MAP_FORMAT,
-            "version": MAP_VERSION,
+            "version": MAP_VERSION if "projection" in files else WHOLE_VERSION,
             "kind": self.kind,
             "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
             "n_frames": n,
@@ -335,19 +347,22 @@ class MapWriter:
             row += len(block)
         return _finish(out, path)
 
-    def _evidence(self, chunks: list[MapChunk | Path], heads: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
-        """The keypoint evidence of every chunk, its slot and entry offsets carried on from chunk to chunk."""
-        totals = {name: sum(h["lengths"][name] for h in heads) for name in EVIDENCE}
-        totals["frame_slots"] -= len(chunks) - 1  # each chunk's closing offset is the next one's opening
-        totals["frame_entries"] -= len(chunks) - 1
+    def _evidence(self, chunks: list[MapChunk | Path], heads: list[dict[str, Any]],
+                  names: tuple[str, ...] = EVIDENCE) -> dict[str, dict[str, Any]]:
+        """The keypoint evidence of every chunk (the arrays ``names``), its slot and entry offsets carried on
+        from chunk to chunk."""
+        totals = {name: sum(h["lengths"][name] for h in heads) for name in names}
+        for name in ("frame_slots", "frame_entries"):
+            if name in totals:
+                totals[name] -= len(chunks) - 1  # each chunk's closing offset is the next one's opening
         first = _load(chunks[0])
         outs = {name: _create(self._tmp / f"{name}.npy", getattr(first, name).dtype,
-                              (totals[name], *getattr(first, name).shape[1:])) for name in EVIDENCE}
-        at = dict.fromkeys(EVIDENCE, 0)
+                              (totals[name], *getattr(first, name).shape[1:])) for name in names}
+        at = dict.fromkeys(names, 0)
         slots = entries = 0
         for source in chunks:
             chunk = _load(source)
-            for name in EVIDENCE:
+            for name in names:
                 values = getattr(chunk, name)
                 if name == "frame_slots":
                     values = values + slots
@@ -360,6 +375,49 @@ class MapWriter:
             slots += len(chunk.slot_counts)
             entries += len(chunk.slot_values)
         return {name: _finish(out, self._tmp / f"{name}.npy") for name, out in outs.items()}
+
+    def _reduced_evidence(self, chunks: list[MapChunk | Path], heads: list[dict[str, Any]], dim: int,
+                          reduced: int) -> dict[str, dict[str, Any]]:
+        """The keypoint evidence with each slot's features reduced to a unit vector of ``reduced`` coordinates on
+        a projection learnt from an even sample of the map's slots (the same whatever the chunks)."""
+        total = sum(h["lengths"]["slot_norms"] for h in heads)
+        sample = sample_rows(total)
+        picked, first = [], 0
+        for source in chunks:
+            chunk = _load(source)
+            count = len(chunk.slot_norms)
+            mine = sample[(sample >= first) & (sample < first + count)] - first
+            picked.append(self._slot_features(chunk, mine, dim))
+            first += count
+        projection = learn_projection(np.concatenate(picked), reduced)
+        files = self._evidence(chunks, heads, REDUCED)
+        projected = _create(self._tmp / "slot_projected.npy", np.float16, (total, projection.shape[1]))
+        at = 0
+        for source in chunks:
+            chunk = _load(source)
+            count = len(chunk.slot_norms)
+            for lo in range(0, count, SLOT_BLOCK):
+                slots = np.arange(lo, min(lo + SLOT_BLOCK, count))
+                rows = project_rows(self._slot_features(chunk, slots, dim), projection)
+                projected[at : at + len(rows)] = rows / np.maximum(row_norms(rows), 1e-30)[:, None]
+                at += len(rows)
+        files["slot_projected"] = _finish(projected, self._tmp / "slot_projected.npy")
+        files["projection"] = _write_array(self._tmp / "projection.npy", projection)
+        return files
+
+    def _slot_features(self, chunk: MapChunk, rows: np.ndarray, dim: int) -> np.ndarray:
+        """(len(rows), D) float32 dense features of a chunk's slots ``rows``, as the backbone gave them."""
+        offsets = np.concatenate([[0], np.cumsum(chunk.slot_counts.astype(np.int64))])
+        lengths = offsets[rows + 1] - offsets[rows]
+        entry = np.repeat(offsets[rows], lengths) + np.arange(int(lengths.sum())) - np.repeat(
+            np.cumsum(lengths) - lengths, lengths)
+        values = chunk.slot_values[entry].astype(np.float32)
+        quant = self.backbone.feature_quantisation if self.backbone else None
+        if quant is not None:
+            values = (values - quant.zero_point) * quant.scale
+        dense = np.zeros((len(rows), dim), dtype=np.float32)
+        dense[np.repeat(np.arange(len(rows)), lengths), chunk.slot_channels[entry].astype(np.int64)] = values
+        return dense
 
     def _swap_in(self) -> None:
         old = None

@@ -18,6 +18,10 @@ A map is a folder::
     slot_norms.npy          (S,) float32   L2 norm of each slot's feature vector
     slot_channels.npy       (E,) uint16    channel of each non-zero entry, slot by slot
     slot_values.npy         (E,)           its value: uint8 as quantised, or float16
+    projection.npy          (D, k) float32 } instead of the slot norms, counts, channels and values, for
+    slot_projected.npy      (S, k) float16 } features wider than [verify] reduce_above (format version 2):
+                                             each slot's unit vector on the map's own projection
+                                             (lostx.core.describe.reduce)
     positions.npy           (N, 2) float64 optional
     timestamps.npy          (N,) float64   optional
 
@@ -49,7 +53,7 @@ from ..layout.grid import LayoutGrid, grid_shape, unpack
 from ..describe.keypoints import KeypointEvidence
 from ..describe.lost import DescriptorStats
 from ..errors import MapError
-from .format import BACKBONE_IDENTITY, MAP_FORMAT, MAP_VERSION, MapKind, backbone_dict, backbone_identity
+from .format import BACKBONE_IDENTITY, MAP_FORMAT, READABLE_VERSIONS, MapKind, backbone_dict, backbone_identity
 from .index import ApproximateIndex, file_sha256
 
 
@@ -78,6 +82,8 @@ class ReferenceMap:
             h, w = self.backbone["grid"]  # type: ignore[index]
             self.grid: tuple[int, int] = (int(h), int(w))
             self.feature_dim = int(arrays["keypoints"].shape[1])
+            self.projection: np.ndarray | None = (
+                np.asarray(arrays["projection"], dtype=np.float32) if "projection" in arrays else None)
 
     @classmethod
     def open(cls, path: str | Path, verify_checksums: bool = False) -> "ReferenceMap":
@@ -93,10 +99,10 @@ class ReferenceMap:
             raise MapError(f"{manifest_path} is corrupt: {exc}") from None
         if not isinstance(manifest, dict) or manifest.get("format") != MAP_FORMAT:
             raise MapError(f"{manifest_path} is not a lostx map manifest")
-        if manifest.get("version") != MAP_VERSION:
+        if manifest.get("version") not in READABLE_VERSIONS:
             raise MapError(
-                f"{path} is map format version {manifest.get('version')}; this lostx reads version "
-                f"{MAP_VERSION}: rebuild the map with `lostx map build`"
+                f"{path} is map format version {manifest.get('version')}; this lostx reads versions "
+                f"{', '.join(map(str, READABLE_VERSIONS))}: rebuild the map with `lostx map build`"
             )
         arrays = {}
         for name, entry in manifest["arrays"].items():
@@ -226,10 +232,16 @@ class ReferenceMap:
                 f"use --backbone {mine.get('name')} with its model, or rebuild the map"
             )
 
+    def query_evidence(self, evidence: KeypointEvidence) -> KeypointEvidence:
+        """A query's keypoint evidence as this map's is compared: projected where the map's descriptors are."""
+        return evidence if self.projection is None else evidence.projected(self.projection)
+
     def evidence(self, indices: np.ndarray | list[int]) -> KeypointEvidence:
         """The keypoint evidence of the frames ``indices`` (in that order), read from the memory map."""
         a = self._arrays
         indices = np.asarray(indices, dtype=np.int64)
+        if self.projection is not None:
+            return self._projected_evidence(indices)
         h, w = self.grid
         frame_slots, frame_entries = a["frame_slots"], a["frame_entries"]
         keys, counts, norms, channels, values = [], [], [], [], []
@@ -257,6 +269,28 @@ class ReferenceMap:
             slot_norms=joined(norms, np.float32),
             grid=(h, w),
             feature_dim=self.feature_dim,
+        )
+
+
+    def _projected_evidence(self, indices: np.ndarray) -> KeypointEvidence:
+        a = self._arrays
+        h, w = self.grid
+        frame_slots = np.asarray(a["frame_slots"])
+        lo, hi = frame_slots[indices], frame_slots[indices + 1]
+        counts = hi - lo
+        rows = np.repeat(lo - (np.cumsum(counts) - counts), counts) + np.arange(int(counts.sum()))
+        frame = np.repeat(np.arange(len(indices), dtype=np.int64), counts)
+        return KeypointEvidence(
+            keypoints=np.asarray(a["keypoints"][indices], dtype=np.int32),
+            labels=np.asarray(a["labels"][indices]),
+            slot_keys=np.asarray(a["slot_locations"][rows], dtype=np.int64) + frame * h * w,
+            slot_offsets=np.zeros(len(rows) + 1, dtype=np.int64),
+            channels=np.zeros(0, np.int32),
+            values=np.zeros(0, np.float32),
+            slot_norms=np.ones(len(rows), np.float32),
+            grid=(h, w),
+            feature_dim=self.feature_dim,
+            reduced=np.asarray(a["slot_projected"][rows], dtype=np.float32),
         )
 
 

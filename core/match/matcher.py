@@ -364,10 +364,10 @@ class PlaceMatcher:
 
     def match_description(self, query: QueryDescription) -> FrameMatch:
         """Normalise (causally), search and verify a described LoST query frame under both headings."""
-        self.last_evidence = query.evidence
         t0 = time.perf_counter()
+        evidence = self.last_evidence = self.map.query_evidence(query.evidence)
         vector = self.normaliser(query.descriptor)
-        match = self._search_and_verify(vector, query.evidence, query.labels, {**query.timings}, t0,
+        match = self._search_and_verify(vector, evidence, query.labels, {**query.timings}, t0,
                                         layout=query.layout)
         match.progress = query.progress
         return match

@@ -87,9 +87,10 @@ def density_filter(group: np.ndarray, location: np.ndarray, strength: np.ndarray
     p = len(location)
     if p == 0:
         return np.zeros(0, dtype=bool)
-    order = np.lexsort((-np.arange(p), strength))
+    # Rank p - 1 for the strongest; among equals the lower index ranks higher.
+    order = np.argsort(-strength, kind="stable")
     rank = np.empty(p, dtype=np.int64)
-    rank[order] = np.arange(p)
+    rank[order] = np.arange(p - 1, -1, -1)
     y, x = location // w + 1, location % w + 1
     padded = np.full((n_groups, h + 2, w + 2), -1, dtype=np.int64)
     np.maximum.at(padded, (group, y, x), rank)
@@ -151,10 +152,17 @@ def pair_similarity(
     """Cosine similarity of x_k (query, at q_loc) and x_k' (candidate cand, at r_loc) for each pair.
 
     The reference vectors stay sparse: a pair costs as many multiplications as
-    its reference slot has non-zero channels.
+    its reference slot has non-zero channels. Evidence reduced to unit vectors on
+    a map's projection (lostx.core.describe.reduce) is compared by their dot
+    products.
     """
     q_rows = query.slot_rows(0, q_loc)
     r_rows = refs.slot_rows(cand, r_loc)
+    if query.dims != refs.dims:
+        raise ValueError(f"the query's keypoint descriptors have {query.dims} dimensions, the references' "
+                         f"{refs.dims} (project the query with the map's projection)")
+    if refs.reduced is not None and query.reduced is not None:
+        return np.einsum("pk,pk->p", query.reduced[q_rows], refs.reduced[r_rows]).astype(np.float64)
     query_unit = l2_normalise(query.dense_slots()).ravel()
     starts = refs.slot_offsets[r_rows]
     lengths = refs.slot_offsets[r_rows + 1] - starts

@@ -128,7 +128,10 @@ def run_info(args: argparse.Namespace) -> int:
     print(f"frames     {refmap.n_frames} ({refmap.camera} camera) from {m.get('image_root', '?')}")
     if backbone:
         print(f"backbone   {backbone['name']} ({backbone['model_file']}, md5 {backbone['model_md5']})")
-        print(f"features   {backbone['feature_dim']} channels on a {backbone['grid'][0]}x{backbone['grid'][1]} grid")
+        reduced = (f", keypoint descriptors reduced to {refmap.projection.shape[1]} dimensions"
+                   if refmap.kind == "lost" and refmap.projection is not None else "")
+        print(f"features   {backbone['feature_dim']} channels on a {backbone['grid'][0]}x{backbone['grid'][1]} grid"
+              f"{reduced}")
     if m.get("classes"):
         print("classes    " + "; ".join(f"{k}: {', '.join(v)}" for k, v in m["classes"].items()))
     looks = m.get("input")
