@@ -282,3 +282,27 @@ def test_a_read_only_journal_folder_is_named_so(tmp_path, monkeypatch):
     monkeypatch.setattr(os, "statvfs", ReadOnly)
     with pytest.raises(InputError, match=r"--journal .* cannot be written into \(a read-only file system\)"):
         check_output_folder(folder, "--journal")
+
+
+def test_a_stream_with_the_layout_and_odometry_carries_over(robotcar, mosaic, tmp_path):
+    """The front/rear scene (S1): the layout gathers the frames of the last 24 m with the ego poses; a restored
+    localizer gathers the same ones."""
+    from lostx.core import LostDescriber, ReferenceMap, build_map
+    from lostx.replay.dataset import open_traverse
+
+    scene = robotcar.parent / "nuscenes-frontrear" / "scene-0523"
+    build_map(open_traverse(scene / "rear"), tmp_path / "rear", describer=LostDescriber(mosaic), progress=False)
+    rear = ReferenceMap.open(tmp_path / "rear")
+    front = list(open_traverse(scene / "front"))
+    went_on = Localizer(rear, backbone=mosaic)
+    expected = [went_on.step(frame).summary() for frame in front]
+    before = Localizer(rear, backbone=mosaic)
+    for frame in front[:25]:
+        before.step(frame)
+    assert before.following_distance and before.matcher.layout_off is None
+    after = Localizer(rear, backbone=mosaic)
+    after.restore(unpack(pack(before.state())))
+    answers = [after.step(frame).summary() for frame in front[25:]]
+    assert all(same(a, e) for a, e in zip(answers, expected[25:]))
+    fresh = Localizer(rear, backbone=mosaic)  # without the gathered frames and the motion: other answers
+    assert sum(not same(fresh.step(frame).summary(), e) for frame, e in zip(front[25:], expected[25:])) >= 5

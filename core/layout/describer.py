@@ -13,6 +13,7 @@ at most ``max_frames`` of them, spread evenly over that distance.
 
 from __future__ import annotations
 
+import dataclasses
 from collections import deque
 from dataclasses import dataclass
 
@@ -88,6 +89,13 @@ class FramePlacer:
     def reset(self) -> None:
         self.odometer.reset()
 
+    def state(self) -> dict:
+        """The stream's motion so far (:meth:`Odometer.state`)."""
+        return {"odometer": self.odometer.state()}
+
+    def restore(self, state: dict) -> None:
+        self.odometer.restore(state["odometer"])
+
     def __call__(self, frame: Frame, label_map: np.ndarray,
                  box: tuple[float, float, float, float] | None = None) -> Placed | None:
         """``label_map`` covers the region ``box`` of the frame's image (all of it by default). None for a
@@ -117,6 +125,18 @@ class LiveLayout:
 
     def reset(self) -> None:
         self._recent.clear()
+
+    def state(self) -> dict:
+        """The frames of the distance travelled just before, each with its evidence and pose, as plain values and
+        arrays."""
+        return {"recent": [dataclasses.asdict(placed) for placed in self._recent]}
+
+    def restore(self, state: dict) -> None:
+        """Continue from :meth:`state`."""
+        self._recent = deque(
+            Placed(FramePoints(**p["points"]), np.asarray(p["pose"], dtype=np.float64), float(p["travelled"]),
+                   float(p["progress"]), np.asarray(p["step"], dtype=np.float64), bool(p["known"]))
+            for p in state["recent"])
 
     def add(self, frame: Placed) -> LayoutGrid:
         cfg = self.config

@@ -256,12 +256,15 @@ class PlaceMatcher:
             self._live.reset()
 
     def state(self) -> dict:
-        """The query statistics that carry from frame to frame (LoST maps), as plain values and arrays."""
-        if self._placer is not None and self.layout_off is None:  # the layout takes part: it gathers frames
-            raise StateError("the layout's gathered frames and the stream's motion do not carry over")
+        """What carries from frame to frame, as plain values and arrays: the query statistics (LoST maps) and,
+        where the layout takes part, the stream's motion and the frames its grids gather
+        (:class:`StateError` where visual odometry places them)."""
         lost = isinstance(self.describer, LostDescriber)
+        layout = self._placer is not None and self._live is not None and self.layout_off is None
         return {"normaliser": self.normaliser.state() if lost else None, "means": self.means.state() if lost else None,
-                "layout_off": self.layout_off}
+                "layout_off": self.layout_off,
+                "placer": self._placer.state() if layout else None,  # type: ignore[union-attr]
+                "live": self._live.state() if layout else None}  # type: ignore[union-attr]
 
     def restore(self, state: dict) -> None:
         self.reset()
@@ -271,6 +274,9 @@ class PlaceMatcher:
             self.normaliser.restore(state["normaliser"])
             self.means.restore(state["means"])
         self.layout_off = state["layout_off"]
+        if state.get("placer") is not None and self._placer is not None and self._live is not None:
+            self._placer.restore(state["placer"])
+            self._live.restore(state["live"])
 
     def match(self, frame: Frame | np.ndarray, camera: Camera | None = None) -> FrameMatch:
         """Match one frame (or a bare image from the ``camera`` it declares) under both heading hypotheses."""

@@ -15,11 +15,13 @@ sequence filter lines frames up with a map by it (:mod:`lostx.core.route.sequenc
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
 
 from ..config import MotionConfig
+from ..errors import StateError
 from ..frame import Frame
 from ..geometry import CameraGeometry
 from .pose import camera_ground_pose, compose, relative
@@ -93,6 +95,23 @@ class Odometer:
             self._visual = VisualOdometry(geometry, width=self.config.visual_width)
             self._visual_geometry = geometry
         return self._visual.step(frame.image, ground, movers)
+
+    def state(self) -> dict:
+        """Where the stream stands (its last placement), as plain values and arrays; :class:`StateError` where
+        visual odometry places the frames (its feature tracks and the previous image do not carry over)."""
+        if self._visual is not None:
+            raise StateError("visual odometry's feature tracks do not carry over")
+        last = self._last
+        return {"last": None if last is None else dataclasses.asdict(last), "scale_known": self._scale_known}
+
+    def restore(self, state: dict) -> None:
+        """Continue from :meth:`state`."""
+        self.reset()
+        last = state["last"]
+        if last is not None:
+            self._last = Placement(**{**last, "pose": np.asarray(last["pose"], dtype=np.float64),
+                                      "step": np.asarray(last["step"], dtype=np.float64)})
+        self._scale_known = bool(state["scale_known"])
 
     def _advance(self, pose: np.ndarray, step: np.ndarray, source: str, known: bool = True) -> Placement:
         last = self._last
