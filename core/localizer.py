@@ -331,8 +331,7 @@ class Localizer:
         """Everything that carries from one frame to the next (the matcher's query statistics, the sequence window,
         the tracker, the heading filter, what the trajectories follow), as plain values and numpy arrays: a
         localizer over the same map and settings given it by :meth:`restore` answers the next frames exactly as
-        this one would. :class:`StateError` where a part cannot be carried (frames placed by visual odometry, costs
-        looked up on a very large map)."""
+        this one would. :class:`StateError` where a part cannot be carried (costs looked up on a very large map)."""
         return {"map_frames": self.map.n_frames, "matcher": self.matcher.state(), "sequence": self.sequence.state(),
                 "following_distance": self.following_distance, "last_progress": self._last_progress,
                 "tracker": self.tracker.state(), "heading": self.heading.state(), "direction": self.direction.belief,

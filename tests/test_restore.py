@@ -306,3 +306,27 @@ def test_a_stream_with_the_layout_and_odometry_carries_over(robotcar, mosaic, tm
     assert all(same(a, e) for a, e in zip(answers, expected[25:]))
     fresh = Localizer(rear, backbone=mosaic)  # without the gathered frames and the motion: other answers
     assert sum(not same(fresh.step(frame).summary(), e) for frame, e in zip(front[25:], expected[25:])) >= 5
+
+
+def test_a_stream_placed_by_visual_odometry_carries_over(robotcar, mosaic, tmp_path):
+    """The same with the motion from the frames themselves: the previous frame and the step filter carry over."""
+    from lostx.core import LostDescriber, ReferenceMap, build_map
+    from lostx.core.config import MotionConfig
+    from lostx.replay.dataset import open_traverse
+
+    scene = robotcar.parent / "nuscenes-frontrear" / "scene-0523"
+    config = Config(motion=MotionConfig(source="visual"))
+    build_map(open_traverse(scene / "rear"), tmp_path / "rear", describer=LostDescriber(mosaic), config=config,
+              progress=False)
+    rear = ReferenceMap.open(tmp_path / "rear")
+    front = list(open_traverse(scene / "front"))
+    went_on = Localizer(rear, config, mosaic)
+    expected = [went_on.step(frame).summary() for frame in front]
+    before = Localizer(rear, config, mosaic)
+    for frame in front[:25]:
+        before.step(frame)
+    assert before.matcher._placer.odometer._visual is not None  # visual odometry places the frames
+    after = Localizer(rear, config, mosaic)
+    after.restore(unpack(pack(before.state())))
+    answers = [after.step(frame).summary() for frame in front[25:]]
+    assert all(same(a, e) for a, e in zip(answers, expected[25:]))

@@ -21,7 +21,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..config import MotionConfig
-from ..errors import StateError
 from ..frame import Frame
 from ..geometry import CameraGeometry
 from .pose import camera_ground_pose, compose, relative
@@ -58,6 +57,7 @@ class Odometer:
     def reset(self) -> None:
         self._last: Placement | None = None
         self._scale_known = False
+        self._pending_visual: dict | None = None
         if self._visual is not None:
             self._visual.reset()
 
@@ -94,24 +94,29 @@ class Odometer:
         if self._visual is None or self._visual_geometry != geometry:
             self._visual = VisualOdometry(geometry, width=self.config.visual_width)
             self._visual_geometry = geometry
+        if self._pending_visual is not None:
+            self._visual.restore(self._pending_visual)
+            self._pending_visual = None
         return self._visual.step(frame.image, ground, movers)
 
     def state(self) -> dict:
-        """Where the stream stands (its last placement), as plain values and arrays; :class:`StateError` where
-        visual odometry places the frames (its feature tracks and the previous image do not carry over)."""
-        if self._visual is not None:
-            raise StateError("visual odometry's feature tracks do not carry over")
+        """Where the stream stands (its last placement) and, where visual odometry places the frames, what it
+        carries to the next frame, as plain values and arrays."""
         last = self._last
-        return {"last": None if last is None else dataclasses.asdict(last), "scale_known": self._scale_known}
+        visual = self._visual.state() if self._visual is not None else self._pending_visual
+        return {"last": None if last is None else dataclasses.asdict(last), "scale_known": self._scale_known,
+                "visual": visual}
 
     def restore(self, state: dict) -> None:
-        """Continue from :meth:`state`."""
+        """Continue from :meth:`state`; visual odometry's part is taken up at the next frame, whose camera it
+        runs on."""
         self.reset()
         last = state["last"]
         if last is not None:
             self._last = Placement(**{**last, "pose": np.asarray(last["pose"], dtype=np.float64),
                                       "step": np.asarray(last["step"], dtype=np.float64)})
         self._scale_known = bool(state["scale_known"])
+        self._pending_visual = state.get("visual")
 
     def _advance(self, pose: np.ndarray, step: np.ndarray, source: str, known: bool = True) -> Placement:
         last = self._last

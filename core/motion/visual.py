@@ -84,6 +84,28 @@ class VisualOdometry:
         self._last: np.ndarray | None = None  # the last step's motion: the guess for the next
         self._unmeasured = 0  # steps predicted in a row
 
+    def state(self) -> dict:
+        """What carries to the next frame, as plain values and arrays: the previous frame at the working size (its
+        band-passed pyramid is recomputed from it), the step length's filter and the last step."""
+        previous = self._previous
+        return {"previous": None if previous is None else {"gray": previous.gray, "usable": previous.usable,
+                                                           "road": previous.road},
+                "length": self._length.state(), "last": self._last, "unmeasured": self._unmeasured}
+
+    def restore(self, state: dict) -> None:
+        """Continue from :meth:`state` (of visual odometry on the same camera)."""
+        self.reset()
+        previous = state["previous"]
+        if previous is not None:
+            gray = np.asarray(previous["gray"], dtype=np.uint8)
+            if self._view is None or self._view.shape != gray.shape:
+                self._view = _View(self.geometry, gray.shape)
+            self._previous = _Frame(gray, _detail(gray), np.asarray(previous["usable"], dtype=np.uint8),
+                                    np.asarray(previous["road"], dtype=bool))
+        self._length.restore(state["length"])
+        self._last = None if state["last"] is None else np.asarray(state["last"], dtype=np.float64)
+        self._unmeasured = int(state["unmeasured"])
+
     def step(self, image: np.ndarray, ground: np.ndarray | None = None,
              movers: np.ndarray | None = None) -> Step | None:
         """image: RGB uint8 H x W x 3 (the geometry is scaled to its size with geometry.scaled_to). ground / movers:
@@ -195,7 +217,7 @@ class _View:
         self.ring = max(3, round(width / 100))  # margin kept from movers and the road's edges, in pixels
 
     def frame(self, gray: np.ndarray, ground: np.ndarray | None, movers: np.ndarray | None) -> _Frame:
-        detail = [_band_pass(image) for image in _pyramid(gray, max(level for level, _ in _PYRAMID) + 1)]
+        detail = _detail(gray)
         usable = self.usable
         if movers is not None:
             moving = cv2.dilate(_resized(movers, self.shape), np.ones((2 * self.ring + 1,) * 2, np.uint8))
@@ -447,6 +469,19 @@ class _LengthFilter:
         kf.update(np.array([[z]]), R=r)
         return max(0.0, float(kf.x[0, 0])), True
 
+    def state(self) -> dict:
+        return {"x": None if self.kf is None else self.kf.x, "P": None if self.kf is None else self.kf.P,
+                "rejected": list(self.rejected)}
+
+    def restore(self, state: dict) -> None:
+        self.kf, self.rejected = None, [float(z) for z in state["rejected"]]
+        if state["x"] is not None:
+            self.restart(0.0)
+            assert self.kf is not None
+            self.kf.x = np.asarray(state["x"], dtype=np.float64).reshape(1, 1)
+            self.kf.P = np.asarray(state["P"], dtype=np.float64).reshape(1, 1)
+            self.rejected = [float(z) for z in state["rejected"]]
+
 
 def _working_gray(image: np.ndarray, width: int) -> np.ndarray:
     image = np.asarray(image)
@@ -457,6 +492,11 @@ def _working_gray(image: np.ndarray, width: int) -> np.ndarray:
     if w > width:
         gray = cv2.resize(gray, (width, max(1, round(height * width / w))), interpolation=cv2.INTER_AREA)
     return gray
+
+
+def _detail(gray: np.ndarray) -> list[np.ndarray]:
+    """The band-passed pyramid of a working-size frame, every level the search compares."""
+    return [_band_pass(image) for image in _pyramid(gray, max(level for level, _ in _PYRAMID) + 1)]
 
 
 def _pyramid(gray: np.ndarray, levels: int) -> list[np.ndarray]:
