@@ -36,13 +36,8 @@ def read_odometry_csv(path: str | Path, names: list[str], timestamps: np.ndarray
     """(N, 3) x, y, yaw (radians) for the images ``names`` (name order) from an odometry CSV."""
     path = Path(path)
     header, rows = read_csv(path, "odometry", "file,x,y,yaw")
-    col = {name: i for i, name in enumerate(header)}
-    missing = [name for name in _POSE if name not in col]
-    if missing:
-        raise InputError(f"{path}:1: header {header} lacks {', '.join(missing)}; an odometry file has x, y (metres), "
-                         f"yaw (degrees) and file or timestamp (see docs/datasets.md)")
-    if not rows:
-        raise InputError(f"{path}: no odometry rows after the header")
+    col = _columns(path, header, rows, _POSE, "an odometry file has x, y (metres), yaw (degrees) and file or "
+                   "timestamp (see docs/datasets.md)", "odometry rows")
     file_col = next((col[n] for n in _FILE if n in col), None)
     time_col = next((col[n] for n in _TIME if n in col), None)
     poses, keys, lines = _parse(path, header, rows, [col[n] for n in _POSE], file_col, time_col)
@@ -54,6 +49,18 @@ def read_odometry_csv(path: str | Path, names: list[str], timestamps: np.ndarray
         raise InputError(f"{path}: {len(poses)} odometry rows for {len(names)} images; add a file or timestamp "
                          f"column, or give one row per image in name order")
     return poses
+
+
+def _columns(path: Path, header: list[str], rows: list[tuple[int, list[str]]], required: tuple[str, ...],
+             advice: str, what: str) -> dict[str, int]:
+    """Each column's index; a one-line error where a ``required`` column or every row is missing."""
+    col = {name: i for i, name in enumerate(header)}
+    missing = [name for name in required if name not in col]
+    if missing:
+        raise InputError(f"{path}:1: header {header} lacks {', '.join(missing)}; {advice}")
+    if not rows:
+        raise InputError(f"{path}: no {what} after the header")
+    return col
 
 
 def _parse(path: Path, header: list[str], rows: list[tuple[int, list[str]]], pose_cols: list[int],
@@ -154,13 +161,7 @@ def read_robotcar_vo(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     """
     path = Path(path)
     header, rows = read_csv(path, "odometry", ",".join(_VO_COLUMNS))
-    col = {name: i for i, name in enumerate(header)}
-    missing = [name for name in _VO_COLUMNS if name not in col]
-    if missing:
-        raise InputError(f"{path}:1: header {header} lacks {', '.join(missing)}; RobotCar's vo.csv has "
-                         f"{','.join(_VO_COLUMNS)}")
-    if not rows:
-        raise InputError(f"{path}: no motions after the header")
+    col = _columns(path, header, rows, _VO_COLUMNS, f"RobotCar's vo.csv has {','.join(_VO_COLUMNS)}", "motions")
     pose = np.eye(4)
     times: list[int] = []
     planar: list[tuple[float, float, float]] = []
