@@ -50,6 +50,23 @@ def test_a_sideways_shift_within_reach_is_found(rng):
     assert similarity(grid, stack, WEIGHTS, shifts=1)[0] == pytest.approx(1.0)
 
 
+def test_both_headings_in_one_pass_equal_each_compared_alone(rng, monkeypatch):
+    """Every map frame compared under both headings at once, and (on a map too large for that) one heading's
+    asked frames alone: the same similarities as one grid against the map, best over its shifts."""
+    from lostx.core.match import combined
+
+    grids = [_grid(rng) for _ in range(30)]  # fewer than REFINE: every frame is refined either way
+    stack, query = GridStack.of(grids), _grid(rng)
+    comparison = combined.LayoutComparison(query, stack, WEIGHTS, shifts=1, min_cells=5)
+    alone = [similarity(view, stack, WEIGHTS, 1, 5) for view in (query, query.turned())]
+    assert np.allclose(comparison.every(), alone, atol=1e-6)
+    monkeypatch.setattr(combined, "EVERY_FRAME_MAX", 10)
+    refs = np.array([3, 17, 29])
+    for heading in (0, 1):
+        large = combined.LayoutComparison(query, stack, WEIGHTS, shifts=1, min_cells=5)
+        assert np.allclose(large.heading(heading).at(refs), alone[heading][refs], atol=1e-6)
+
+
 def test_too_few_cells_in_common_give_no_similarity(rng):
     grid = _grid(rng, seen=1.0)
     sparse = LayoutGrid(grid.values, np.zeros_like(grid.mask))
@@ -129,7 +146,7 @@ def test_the_same_stretch_from_its_two_ends_agrees_better_turned(scene, mosaic):
     """Front frame i and rear frame i + 12 show one stretch of road from its two ends (the data's ground truth):
     their grids agree better with one of them turned 180 degrees than as they are."""
     config = Config()
-    front = _placed(open_traverse(scene / "front").subset(range(0, 20)), mosaic, config)
+    front = _placed(open_traverse(scene / "front").subset(range(20)), mosaic, config)
     rear = _placed(open_traverse(scene / "rear").subset(range(8, 34)), mosaic, config)
     live = LiveLayout(config.layout)
     queries = [live.add(p) for p in front]

@@ -38,40 +38,43 @@ class LayoutComparison:
         self.maps, self.weights, self.shifts, self.min_cells, self.turns = maps, weights, shifts, min_cells, turns
         self._every: np.ndarray | None = None
 
-    def heading(self, index: int) -> "LayoutScores":
+    def heading(self, index: int) -> LayoutScores:
         """The scores under heading ``index`` (0: as the grid lies, 1: turned)."""
         return LayoutScores(self, index)
 
     def every(self) -> np.ndarray:
         """(2, N) both headings' similarity with every map frame."""
         if self._every is None:
-            self._every = self._compare(self.maps)
+            self._every = self._compare(self.maps, (0, 1))
         return self._every
 
-    def at(self, refs: np.ndarray) -> np.ndarray:
-        """(2, len(refs)) both headings' similarity with the map frames ``refs``."""
+    def at(self, refs: np.ndarray, heading: int) -> np.ndarray:
+        """Heading ``heading``'s similarity with the map frames ``refs`` (on a map too large to compare every
+        frame, that heading's alone is computed)."""
         if self._every is not None or self.maps.n <= EVERY_FRAME_MAX:
-            return self.every()[:, refs]
-        return self._compare(self.maps.rows(refs))
+            return self.every()[heading, refs]
+        return self._compare(self.maps.rows(refs), (heading,))[0]
 
-    def _compare(self, maps: GridStack) -> np.ndarray:
-        """Best over the turns and sideways shifts: every map grid as it lies, then each heading's ``REFINE``
-        most similar also shifted (a shift only ever finds a better fit, and only the best ones matter)."""
-        turns = len(self.turns)
+    def _compare(self, maps: GridStack, headings: tuple[int, ...]) -> np.ndarray:
+        """(len(headings), N), best over the turns and sideways shifts: every map grid as it lies, then each
+        heading's ``REFINE`` most similar also shifted (a shift only ever finds a better fit, and only the best
+        ones matter)."""
+        views, turns = [self.views[h] for h in headings], len(self.turns)
 
         def compare(stack: GridStack, shifts: int) -> np.ndarray:
-            queries = [view.rotated(angle) for view in self.views for angle in self.turns]
+            queries = [view.rotated(angle) for view in views for angle in self.turns]
             scores = similarities(queries, stack, self.weights, shifts, self.min_cells)
-            return scores.reshape(len(self.views), turns, stack.n).max(axis=1)
+            return scores.reshape(len(views), turns, stack.n).max(axis=1)
 
         scores = compare(maps, 0)
         if self.shifts and maps.n:
             ranked = np.where(np.isfinite(scores), scores, -np.inf)
-            best = np.argsort(-ranked, axis=1, kind="stable")[:, :REFINE]  # (2, REFINE): each heading's own
+            best = np.argsort(-ranked, axis=1, kind="stable")[:, :REFINE]  # each heading's own
             union, where = np.unique(best, return_inverse=True)
+            where = where.reshape(best.shape)
             refined = compare(maps.rows(union), self.shifts)
-            for h in range(len(self.views)):
-                scores[h, best[h]] = np.maximum(scores[h, best[h]], refined[h, where.reshape(best.shape)[h]])
+            for h in range(len(views)):
+                scores[h, best[h]] = np.maximum(scores[h, best[h]], refined[h, where[h]])
         return scores
 
 
@@ -96,7 +99,7 @@ class LayoutScores:
         return self.comparison.every()[self.index]
 
     def at(self, refs: np.ndarray) -> np.ndarray:
-        return self.comparison.at(np.asarray(refs, dtype=np.int64))[self.index]
+        return self.comparison.at(np.asarray(refs, dtype=np.int64), self.index)
 
 
 def sampled(n_frames: int) -> np.ndarray:
