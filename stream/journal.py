@@ -342,13 +342,17 @@ class Journal:
             self._fd = os.open(self._segments[-1].path, os.O_WRONLY | os.O_APPEND)
 
     def _sync_folder(self) -> None:
-        if not self.fsync:
-            return
-        fd = os.open(self.folder, os.O_RDONLY)
-        try:
-            os.fsync(fd)
-        finally:
-            os.close(fd)
+        if self.fsync:
+            sync_folder(self.folder)
+
+
+def sync_folder(folder: Path) -> None:
+    """Make a folder's entries (files created, renamed, removed) survive a crash of the machine."""
+    fd = os.open(folder, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
 
 
 def _crc(seq: int, payload: bytes) -> int:

@@ -38,6 +38,7 @@ import msgpack
 import numpy as np
 
 from .errors import StreamError
+from .journal import sync_folder
 
 SUFFIX = ".state"
 _ARRAY = 1
@@ -177,11 +178,7 @@ class StateStore:
 
     def _sync_folder(self) -> None:
         if self.fsync:
-            fd = os.open(self.folder, os.O_RDONLY)
-            try:
-                os.fsync(fd)
-            finally:
-                os.close(fd)
+            sync_folder(self.folder)
 
 
 def _key(stream: str) -> str:
