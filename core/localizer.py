@@ -220,7 +220,9 @@ class Localizer:
         confident = self._confident(confidence, heading_sure)
         position, speed, trusted = seq.position, seq.speed, confident
         if not warming and self.config.tracker.enabled:
-            track = self.tracker.step(seq.position, seq.speed, confident)
+            # Acquisition tests a constant speed in reference frames per frame: the trajectories' own model when
+            # they follow the frames; when they follow the distance, stops and changes of speed break it.
+            track = self.tracker.step(seq.position, seq.speed, confident, acquire=not self.following_distance)
             trusted = confident and track.accepted
             if not track.accepted and track.position != seq.position:
                 position, speed, confidence = track.position, track.speed, 0.0  # the track's prediction

@@ -63,6 +63,13 @@ def test_without_acquisition_only_a_confident_answer_starts_a_track():
     assert tracker.step(18.0, 1.0, confident=True).relocalised
 
 
+def test_answers_following_the_distance_start_no_track_by_moving_together():
+    tracker = RouteTracker(TrackerConfig(acquire_after=5))
+    assert not any(tracker.step(10.0 + t, 1.0, confident=False, acquire=False).accepted for t in range(8))
+    assert not tracker.tracking
+    assert tracker.step(18.0, 1.0, confident=True, acquire=False).relocalised
+
+
 @pytest.fixture(scope="module")
 def stretch(tmp_path_factory, nordland) -> tuple[ReferenceMap, list]:
     """Summer frames 300-399 as the map, the same places in winter as the queries: a short same-direction route."""

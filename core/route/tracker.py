@@ -8,9 +8,9 @@ that exactly, costs O(1) per frame whatever the map size, and gives the
 innovation's standard deviation that the gate needs. A Bayes filter over N
 places would cost O(N) per frame and repeat what the sequence search does.
 
-A track starts from a confident answer, or from ``acquire_after`` answers in a
-row that move together as one vehicle would (a short map seldom makes an answer
-confident; such a track holds the answer through a bad frame but trusts nothing
+A track starts from a confident answer, or, while the trajectories follow the
+frames, from ``acquire_after`` answers in a row that move together as one
+vehicle would (a short map seldom makes an answer confident; such a track holds the answer through a bad frame but trusts nothing
 by itself, and narrows the speeds the sequence filter searches only once a
 confident answer has confirmed it). The filter then gates the sequence
 answers: one within ``gate_sigma`` standard deviations of the prediction is
@@ -85,11 +85,12 @@ class RouteTracker:
         v, sigma = float(self.kf.x[1, 0]), float(np.sqrt(self.kf.P[1, 1]))
         return v - 3.0 * sigma, v + 3.0 * sigma
 
-    def step(self, position: float, speed: float, confident: bool) -> TrackStep:
-        """Feed one sequence answer; ``confident``: its margin reaches the localized threshold."""
+    def step(self, position: float, speed: float, confident: bool, acquire: bool = True) -> TrackStep:
+        """Feed one sequence answer; ``confident``: its margin reaches the localized threshold; ``acquire``: answers
+        that move together may start a track without a confident one."""
         if self.kf is None:
             self._untracked.append((position, speed))
-            acquired = self.config.acquire_after > 0 and _together(self._untracked, self.config.acquire_after,
+            acquired = acquire and self.config.acquire_after > 0 and _together(self._untracked, self.config.acquire_after,
                                                                    self.config.position_sigma)
             if not (confident or acquired):
                 return TrackStep(False, position, speed)
