@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import re
 from pathlib import Path
 
@@ -10,7 +11,7 @@ import numpy as np
 import pytest
 
 from lostx.commands.camera_check import HORIZON_BGR, ROAD_BGR
-from lostx.core.geometry import CAMERA_FILE
+from lostx.core.geometry import CAMERA_FILE, write_camera_file
 from lostx.core.images import list_images
 from lostx.core.paths import data_dir
 from lostx.replay.dataset import open_traverse
@@ -56,6 +57,20 @@ def test_the_front_camera_check_prints_and_draws_the_horizon_and_the_road(front,
     assert near(drawn, 668.2, 700, ROAD_BGR)  # near the middle: the road lines tilt with the roll too
     original = cv2.imread(str(list_images(front)[0]))
     assert np.abs(drawn[100:300].astype(int) - original[100:300]).max() == 0  # the sky is left as it was
+
+
+def test_the_check_compares_the_pitch_with_the_direction_of_travel(front, tmp_path):
+    proc = lostx("camera", "check", front)
+    assert proc.returncode == 0, proc.stderr
+    agrees = re.search(r"^motion .* over (\d+) steps puts the pitch at (-?[\d.]+) degrees \(the geometry: -0\.49\): "
+                       r"agrees$", proc.stdout, re.MULTILINE)
+    assert agrees and int(agrees.group(1)) >= 30 and abs(float(agrees.group(2)) + 0.49) < 0.75
+    geometry = dataclasses.replace(open_traverse(front).geometry, pitch=2.0)  # a camera file 2.5 degrees off
+    write_camera_file(geometry, tmp_path / "camera.toml")
+    proc = lostx("camera", "check", front, "--camera-file", tmp_path / "camera.toml")
+    assert proc.returncode == 0, proc.stderr
+    assert re.search(r"^motion .*puts the pitch at -0\.\d+ degrees \(the geometry: 2\.00\): DISAGREES", proc.stdout,
+                     re.MULTILINE), proc.stdout
 
 
 def test_the_rear_camera_check_shows_the_body_rows(tmp_path):

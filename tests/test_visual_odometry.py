@@ -8,8 +8,11 @@ forward moves backwards (dx < 0).
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 import math
+import re
+import warnings
 
 import cv2
 import numpy as np
@@ -17,7 +20,7 @@ import pytest
 
 from lostx.core.geometry import CameraGeometry, quaternion_matrix
 from lostx.core.motion.pose import camera_ground_pose, relative, wrap
-from lostx.core.motion.visual import Step, VisualOdometry
+from lostx.core.motion.visual import CameraPitchWarning, Step, VisualOdometry
 from lostx.core.paths import data_dir
 
 SCENE = data_dir() / "nuscenes-frontrear" / "scene-0523"
@@ -185,3 +188,22 @@ def test_a_road_that_does_not_match_gives_no_length(cameras):
         if i > 20:
             assert not step.measured and step.quality < 0.05
             assert abs(math.degrees(step.motion[2] - camera.true_steps[i - 1, 2])) < 0.5
+
+
+@pytest.mark.parametrize("error", [0.0, 2.0, -2.0])
+def test_a_camera_pitch_off_by_degrees_is_said_once(cameras, error):
+    """The direction of travel lies on the horizon: a geometry whose pitch is 2 degrees off is named, with the pitch
+    the frames show (the same whatever the geometry says); the calibrated one is not."""
+    front = cameras["front"]
+    odometry = VisualOdometry(dataclasses.replace(front.geometry, pitch=front.geometry.pitch + error))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        front.run(range(20), odometry)
+    said = [str(w.message) for w in caught if w.category is CameraPitchWarning]
+    if error == 0.0:
+        assert said == []
+        return
+    assert len(said) == 1
+    seen = float(re.search(r"pitch at (-?[\d.]+) degrees", said[0]).group(1))
+    assert abs(seen - front.geometry.pitch) < 0.75  # the frames' own pitch, near the calibration's
+    assert f"geometry says {front.geometry.pitch + error:.1f}" in said[0] and "lostx camera check" in said[0]

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import warnings
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -11,9 +12,14 @@ from lostx.options import add_source_options, print_notes, source_options_from_a
 if TYPE_CHECKING:
     from lostx.core.frame import Frame
     from lostx.core.geometry import CameraGeometry
+    from lostx.replay.folder import Traverse
 
 LIVE_TIMEOUT_S = 10.0
 """How long ``camera check camera:N`` waits for the device's first frame."""
+MOTION_FRAMES = 40
+"""Frames of a recording over which the pitch is checked against the direction of travel."""
+PITCH_AGREES_DEG = 1.0
+"""Within this the pitch the motion shows agrees with the geometry's (its own error on real frames: about 0.5)."""
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -39,11 +45,34 @@ def run_check(args: argparse.Namespace) -> int:
 
     if args.out is not None:
         check_output_file(args.out, "--out")
-    frame, label, notes = _frame(args)
+    frame, label, notes, traverse = _frame(args)
     print_notes(notes)
     geometry = _geometry(frame, args.source)
     _print_and_draw(frame, geometry, label, args.out)
+    if traverse is not None:
+        _print_seen_pitch(traverse, geometry, args.frame)
     return 0
+
+
+def _print_seen_pitch(traverse: Traverse, geometry: CameraGeometry, start: int) -> None:
+    """The pitch the frames' direction of travel shows (visual odometry over up to ``MOTION_FRAMES`` frames)."""
+    from lostx.core.motion.visual import VisualOdometry
+
+    odometry = VisualOdometry(geometry)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # said here as a line of its own
+        for k in range(start, min(len(traverse), start + MOTION_FRAMES)):
+            odometry.step(traverse.frame(k).image)
+    seen = odometry.seen_pitch()
+    if seen is None:
+        print(f"motion     no step along the camera's axis in frames {start}-{start + MOTION_FRAMES - 1}: "
+              f"the pitch is not checked against the motion")
+        return
+    pitch, steps = seen
+    verdict = ("agrees" if abs(pitch - geometry.pitch) <= PITCH_AGREES_DEG else
+               "DISAGREES: the layout needs the pitch to within half a degree; see where the horizon falls")
+    print(f"motion     the direction of travel over {steps} steps puts the pitch at {pitch:.2f} degrees "
+          f"(the geometry: {geometry.pitch:.2f}): {verdict}")
 
 
 def _print_and_draw(frame: Frame, calibrated: CameraGeometry, label: str, out: Path | None) -> None:
@@ -78,19 +107,19 @@ def _geometry(frame: Frame, source: str) -> CameraGeometry:
     return frame.geometry
 
 
-def _frame(args: argparse.Namespace) -> tuple[Frame, str, list[str]]:
-    """Frame ``--frame`` of the source, a label for it, and the reader's notes."""
+def _frame(args: argparse.Namespace) -> tuple[Frame, str, list[str], Traverse | None]:
+    """Frame ``--frame`` of the source, a label for it, the reader's notes, and the recording (None: live)."""
     from lostx.core.errors import InputError
     from lostx.replay.camera import camera_index
     from lostx.replay.dataset import open_traverse
 
     index = camera_index(args.source)
     if index is not None:
-        return _live_frame(args, index), f"camera:{index}", []
+        return _live_frame(args, index), f"camera:{index}", [], None
     traverse = open_traverse(Path(args.source), args.format, options=source_options_from_args(args))
     if args.frame >= len(traverse):
         raise InputError(f"--frame {args.frame}: {args.source} has {len(traverse)} frames (0 to {len(traverse) - 1})")
-    return traverse.frame(args.frame), f"{traverse.name} #{args.frame}", traverse.notes
+    return traverse.frame(args.frame), f"{traverse.name} #{args.frame}", traverse.notes, traverse
 
 
 def _live_frame(args: argparse.Namespace, index: int) -> Frame:
