@@ -190,7 +190,8 @@ class SequenceConfig:
     frame); ``auto``: distance where both have motion."""
     distance_window: float = 45.0
     """Following the distance travelled: the window holds the frames of the last this many metres (at most
-    ``length`` of them), so that its reach does not depend on the frame rate or the speed."""
+    ``length`` of them, ``distance_window / length`` metres apart but for the newest), so that its reach does not
+    depend on the frame rate or the speed."""
     distance_ratios: tuple[float, ...] = (0.8, 0.9, 1.0, 1.1, 1.25)
     """Following the distance travelled: metres along the map per metre travelled, each with both signs (the
     route driven the other way): 1 where both odometries agree, the others absorb their scale errors."""

@@ -114,7 +114,8 @@ class Localizer:
         speeds = signed(seq.distance_ratios, stopped=False) if route is not None else signed(seq.speeds, stopped=True)
         return SequenceFilter(seq.length, tuple(speeds), seq.radius, seq.penalty,
                               costs(self.map.n_frames, seq.length, seq.contrast_window, seq.reference_prior),
-                              seq.anchors, seq.contrast_window // 2, route, seq.distance_window)
+                              seq.anchors, seq.contrast_window // 2, route, seq.distance_window,
+                              seq.distance_window / seq.length)
 
     def _follow(self, progress: float | None) -> None:
         """Choose what the sequence filter's trajectories are straight in: at a traverse's first frame, and again

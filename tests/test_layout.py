@@ -208,3 +208,33 @@ def test_the_sequence_follows_the_distance_through_a_stop_and_changes_of_speed(r
     assert np.all(np.abs(along[after] - truth[after]) <= 1.0), np.round(along - truth, 1)
     frames = run(False)
     assert np.abs(frames[after] - truth[after]).max() > 1.0  # straight in frames, the stop and the speeds break it
+
+
+def test_at_a_high_frame_rate_or_stopped_the_window_keeps_its_reach_in_metres(rng):
+    """Frames 0.5 m apart (four times a 2 Hz rate) and a stop: a frame nearer than reach / length to the frame
+    before the newest takes the newest's place, so that the window still spans most of its reach in metres and
+    sees ten places, not two."""
+    n_refs, reach, length = 150, 30.0, 10
+    route = np.arange(n_refs) * 2.0
+    steps = np.concatenate([np.full(60, 0.5), np.zeros(20), np.full(60, 0.5)])
+    progress = 10.0 + np.concatenate([[0.0], np.cumsum(steps)])
+    truth = np.rint(progress / 2.0).astype(int)
+    looks = rng.normal(0.0, 1.0, (n_refs, n_refs))  # frames at one place share its look-alikes
+    scores = [looks[t] - 2.0 * (np.arange(n_refs) == t) for t in truth]
+
+    def run(spacing: float) -> tuple[np.ndarray, np.ndarray]:
+        seq = SequenceFilter(length, tuple(signed((0.8, 1.0, 1.25), stopped=False)), 0, 0.0,
+                             EveryFrameCosts(n_refs, length, 10, 100.0), anchors=5, neighbourhood=5, route=route,
+                             reach=reach, spacing=spacing)
+        results = [seq.update(MapScores.of_array(s), np.argsort(s)[:3], None, None, float(q))
+                   for s, q in zip(scores, progress)]
+        span = np.array([2.0 * abs(r.trajectory[-1] - r.trajectory[0]) for r in results])
+        return np.array([r.position for r in results]), span
+
+    kept, kept_span = run(reach / length)
+    recent, recent_span = run(0.0)
+    later = slice(70, None)  # once 30 m are travelled, through the stop and after
+    assert kept_span[later].min() >= 2 * reach / 3 and recent_span[later].max() <= 6.0
+    kept_wrong = int((np.abs(kept - truth)[later] > 1).sum())
+    recent_wrong = int((np.abs(recent - truth)[later] > 1).sum())
+    assert kept_wrong <= 2 and recent_wrong >= 10 * max(kept_wrong, 1), (kept_wrong, recent_wrong)

@@ -99,13 +99,15 @@ class SequenceFilter:
 
     def __init__(self, length: int, speeds: tuple[float, ...], radius: int, penalty: float, costs: WindowCosts,
                  anchors: int = 0, neighbourhood: int = 0, route: np.ndarray | None = None,
-                 reach: float | None = None) -> None:
+                 reach: float | None = None, spacing: float = 0.0) -> None:
         """``costs``: where the window's costs come from; ``anchors``: how many of a frame's lowest costs
         anchor trajectories besides its candidates; ``neighbourhood``: how far around each seed (a nearest
         map frame of the frame's search) they are looked for, where not every cost is known. ``route``: the
         map's route position P(r) of every map frame (rising), to follow the distance travelled (each
         :meth:`update` then gives the frame's progress); None: trajectories straight in frames. ``reach``: the
-        window then holds the frames of the last this many metres (at most ``length`` of them)."""
+        window then holds the frames of the last this many metres (at most ``length`` of them), ``spacing``
+        metres apart at least but for the newest (a frame nearer the one before the newest takes the newest's
+        place: at a high frame rate, or stopped, the window keeps its reach)."""
         if length < 1 or not speeds:
             raise ValueError("the sequence window needs at least one frame and one speed")
         self.length = length
@@ -117,6 +119,7 @@ class SequenceFilter:
         self.neighbourhood = int(neighbourhood)
         self.route = None if route is None else np.asarray(route, dtype=np.float64)
         self.reach = reach
+        self.spacing = float(spacing)
         self.reset()
 
     def reset(self) -> None:
@@ -170,23 +173,27 @@ class SequenceFilter:
         ``speeds`` optionally restricts the speeds of the trajectories this frame spawns
         (a tracker's plausible range); older trajectories keep theirs.
         """
-        self._t += 1
-        t = self._t
         if self.route is not None and progress is None:
             raise ValueError("a sequence filter following the distance travelled needs each frame's progress")
-        self.costs.add(t, scores)
-        self._times.append(t)
-        self._progress.append(float(t) if self.route is None else float(progress))  # type: ignore[arg-type]
-        if len(self._times) > self.length:
-            self._times.popleft()
-            self._progress.popleft()
-        oldest = self._times[0]
-
-        # Slide the window: drop trajectories anchored before it, shift the cost columns left.
-        live = self._anchor_t >= oldest
-        self._anchor_t, self._anchor_r, self._speed = self._anchor_t[live], self._anchor_r[live], self._speed[live]
-        self._anchor_q = self._anchor_q[live]
-        self._costs = np.concatenate([self._costs[live, 1:], np.full((int(live.sum()), 1), np.nan)], axis=1)
+        if self._replaces(progress):
+            # The newest frame is still within ``spacing`` of the one before it: the new frame takes its column (and
+            # its trajectories' anchors), so that the window keeps its reach in metres at any frame rate or speed.
+            t = self._t
+            self.costs.add(t, scores)
+            self._progress[-1] = float(progress)  # type: ignore[arg-type]
+            self._keep(self._anchor_t != t)
+        else:
+            self._t += 1
+            t = self._t
+            self.costs.add(t, scores)
+            self._times.append(t)
+            self._progress.append(float(t) if self.route is None else float(progress))  # type: ignore[arg-type]
+            if len(self._times) > self.length:
+                self._times.popleft()
+                self._progress.popleft()
+            # Slide the window: drop trajectories anchored before it, shift the cost columns left.
+            self._keep(self._anchor_t >= self._times[0])
+            self._costs = np.concatenate([self._costs[:, 1:], np.full((len(self._costs), 1), np.nan)], axis=1)
         if len(self._anchor_t):
             # The newest frame's cost on every live trajectory.
             self._costs[:, -1] = self._lookup(np.array(t), self.positions())
@@ -209,6 +216,16 @@ class SequenceFilter:
         self._costs = np.concatenate([self._costs, new_costs])
         self._best_result = self._best()
         return self._best_result
+
+    def _replaces(self, progress: float | None) -> bool:
+        """Whether a frame at ``progress`` takes the newest frame's place in the window (following the distance)."""
+        return (self.route is not None and self.spacing > 0 and len(self._progress) >= 2
+                and abs(float(progress) - self._progress[-2]) < self.spacing)  # type: ignore[arg-type]
+
+    def _keep(self, live: np.ndarray) -> None:
+        """Keep only the trajectories ``live``."""
+        self._anchor_t, self._anchor_r, self._speed = self._anchor_t[live], self._anchor_r[live], self._speed[live]
+        self._anchor_q, self._costs = self._anchor_q[live], self._costs[live]
 
     def _new_anchors(self, t: int, candidates: np.ndarray, seeds: np.ndarray | None) -> np.ndarray:
         """The candidates, and the ``anchors`` lowest costs of frame t: over the map where every cost is
