@@ -15,7 +15,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .reduce import project_rows
+from .reduce import project_rows, project_slots
 
 NO_KEYPOINT = -1
 
@@ -25,8 +25,10 @@ def argmax_keypoints(features: np.ndarray) -> np.ndarray:
     (constant over the frame), which therefore has no keypoint."""
     flat = features.reshape(features.shape[0], -1)
     keypoints = flat.argmax(axis=1).astype(np.int32)
-    peak = np.take_along_axis(flat, keypoints[:, None].astype(np.int64), axis=1)[:, 0]
-    keypoints[peak <= flat.min(axis=1)] = NO_KEYPOINT
+    # argmax gives the first maximum, so a constant channel peaks at location 0: only those need the minimum.
+    first = np.flatnonzero(keypoints == 0)
+    rows = flat[first]
+    keypoints[first[rows[:, 0] <= rows.min(axis=1)]] = NO_KEYPOINT
     return keypoints
 
 
@@ -91,8 +93,7 @@ class KeypointEvidence:
         """The same evidence with each slot's features as a unit vector of its coordinates on ``projection``'s
         (D, k) directions."""
         if self.frame_features is not None and self.dense is None:
-            # Projecting the whole frame and keeping the slots' columns spares gathering their D-dim rows.
-            rows = np.ascontiguousarray((projection.T @ self.frame_features)[:, self.slot_keys].T)
+            rows = project_slots(self.frame_features, self.slot_keys, projection)
         else:
             rows = project_rows(self.dense_slots(), projection)
         norms = row_norms(rows)
