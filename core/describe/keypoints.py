@@ -70,7 +70,10 @@ class KeypointEvidence:
     def slot_rows(self, frame: np.ndarray | int, location: np.ndarray) -> np.ndarray:
         """Slot row of each (frame, keypoint location) pair; the location must be a keypoint of the frame."""
         keys = np.asarray(frame, dtype=np.int64) * self.n_locations + location
-        return np.searchsorted(self.slot_keys, keys)
+        # A table over every (frame, location) key: one look-up per pair instead of a binary search.
+        table = np.zeros(self.n_frames * self.n_locations, dtype=np.int64)
+        table[self.slot_keys] = np.arange(len(self.slot_keys))
+        return table[keys]
 
     def dense_slots(self) -> np.ndarray:
         """(S, D) float32 feature vectors of all slots."""
