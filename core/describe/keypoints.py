@@ -40,7 +40,7 @@ class KeypointEvidence:
     of frame c (sorted); its feature vector is sparse: channels
     ``channels[slot_offsets[r]:slot_offsets[r + 1]]`` hold ``values[...]``, the
     other channels are zero. A live query keeps its frame's whole features instead
-    (``frame_features``; the sparse arrays are then empty) and reads its slots from them
+    (``frame_features``; the sparse arrays and slot norms are then empty) and reads its slots from them
     when asked (:meth:`dense_slots`, :meth:`projected`); :meth:`sparse` converts where
     they are stored. Evidence compared in fewer dimensions keeps each slot as a unit
     vector on the map's projection (``reduced``, k columns).
@@ -159,7 +159,7 @@ def frame_evidence(features: np.ndarray, labels: np.ndarray) -> KeypointEvidence
         slot_offsets=np.zeros(len(slots) + 1, dtype=np.int64),
         channels=empty.astype(np.int32),
         values=empty.astype(np.float32),
-        slot_norms=np.sqrt(np.einsum("dn,dn->n", flat, flat)[slots]).astype(np.float32),
+        slot_norms=empty.astype(np.float32),
         grid=(h, w),
         feature_dim=d,
         frame_features=flat,

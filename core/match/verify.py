@@ -187,6 +187,7 @@ def pair_similarity(
     if refs.reduced is not None and query.reduced is not None:
         return np.einsum("pk,pk->p", query.reduced[q_rows], refs.reduced[r_rows]).astype(np.float64)
     query_unit = l2_normalise(query.dense_slots()).ravel()
+    refs = refs.sparse()  # a live frame's evidence holds its features whole
     starts = refs.slot_offsets[r_rows]
     lengths = refs.slot_offsets[r_rows + 1] - starts
     bounds = np.cumsum(lengths) - lengths  # where each pair's products begin
