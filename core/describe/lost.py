@@ -71,15 +71,16 @@ def lost_descriptor(features: np.ndarray, group_probs: np.ndarray, mu: np.ndarra
     per_class = np.empty((len(mu), d), dtype=np.float32)
     scratch = np.empty((len(mu), min(_BLOCK, d), n), dtype=np.float32)
     # Channel blocks keep the |mu_s - x_i| temporaries of every class s in cache (9x faster at 2048 x 620 than
-    # in one piece). mu_s is written out along i before it is subtracted: numpy subtracts a value per row row by
-    # row, at a third of the speed of two whole arrays.
+    # in one piece). mu_s is written out along i and then subtracted as a whole array: 1.6x faster than numpy's
+    # broadcast of a value per row, which it subtracts row by row.
     for start in range(0, d, _BLOCK):
         block = features[start : start + _BLOCK]
         residual = scratch[:, : len(block)]
         np.copyto(residual, mu[:, start : start + _BLOCK, None])
         np.subtract(block, residual, out=residual)
         np.abs(residual, out=residual)
-        per_class[:, start : start + _BLOCK] = np.einsum("sdn,sn->sd", residual, group_probs)  # L_s = sum_i m_is |mu_s - x_i|
+        # L_s = sum_i m_is |mu_s - x_i|
+        per_class[:, start : start + _BLOCK] = np.einsum("sdn,sn->sd", residual, group_probs)
     return l2_normalise(per_class).reshape(-1).astype(np.float32)
 
 
