@@ -27,7 +27,7 @@ def test_evidence_keeps_exact_features_at_keypoint_locations(rng):
     flat = features.reshape(6, -1)
     for row, location in enumerate(ev.slot_keys):
         np.testing.assert_array_equal(dense[row], flat[:, location])
-    np.testing.assert_allclose(ev.slot_norms, np.linalg.norm(dense, axis=1), rtol=1e-6)
+    np.testing.assert_allclose(ev.sparse().slot_norms, np.linalg.norm(dense, axis=1), rtol=1e-6)
     assert set(ev.slot_keys.tolist()) == set(ev.keypoints[0][ev.keypoints[0] >= 0].tolist())
 
 

@@ -15,7 +15,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .reduce import project_rows
+from .reduce import project_rows, project_slots
 
 NO_KEYPOINT = -1
 
@@ -25,8 +25,10 @@ def argmax_keypoints(features: np.ndarray) -> np.ndarray:
     (constant over the frame), which therefore has no keypoint."""
     flat = features.reshape(features.shape[0], -1)
     keypoints = flat.argmax(axis=1).astype(np.int32)
-    peak = np.take_along_axis(flat, keypoints[:, None].astype(np.int64), axis=1)[:, 0]
-    keypoints[peak <= flat.min(axis=1)] = NO_KEYPOINT
+    # argmax gives the first maximum, so a constant channel peaks at location 0: only those need the minimum.
+    first = np.flatnonzero(keypoints == 0)
+    rows = flat[first]
+    keypoints[first[rows[:, 0] <= rows.min(axis=1)]] = NO_KEYPOINT
     return keypoints
 
 
@@ -38,7 +40,7 @@ class KeypointEvidence:
     of frame c (sorted); its feature vector is sparse: channels
     ``channels[slot_offsets[r]:slot_offsets[r + 1]]`` hold ``values[...]``, the
     other channels are zero. A live query keeps its frame's whole features instead
-    (``frame_features``; the sparse arrays are then empty) and reads its slots from them
+    (``frame_features``; the sparse arrays and slot norms are then empty) and reads its slots from them
     when asked (:meth:`dense_slots`, :meth:`projected`); :meth:`sparse` converts where
     they are stored. Evidence compared in fewer dimensions keeps each slot as a unit
     vector on the map's projection (``reduced``, k columns).
@@ -68,7 +70,10 @@ class KeypointEvidence:
     def slot_rows(self, frame: np.ndarray | int, location: np.ndarray) -> np.ndarray:
         """Slot row of each (frame, keypoint location) pair; the location must be a keypoint of the frame."""
         keys = np.asarray(frame, dtype=np.int64) * self.n_locations + location
-        return np.searchsorted(self.slot_keys, keys)
+        # A table over every (frame, location) key: one look-up per pair instead of a binary search.
+        table = np.zeros(self.n_frames * self.n_locations, dtype=np.int64)
+        table[self.slot_keys] = np.arange(len(self.slot_keys))
+        return table[keys]
 
     def dense_slots(self) -> np.ndarray:
         """(S, D) float32 feature vectors of all slots."""
@@ -91,8 +96,7 @@ class KeypointEvidence:
         """The same evidence with each slot's features as a unit vector of its coordinates on ``projection``'s
         (D, k) directions."""
         if self.frame_features is not None and self.dense is None:
-            # Projecting the whole frame and keeping the slots' columns spares gathering their D-dim rows.
-            rows = np.ascontiguousarray((projection.T @ self.frame_features)[:, self.slot_keys].T)
+            rows = project_slots(self.frame_features, self.slot_keys, projection)
         else:
             rows = project_rows(self.dense_slots(), projection)
         norms = row_norms(rows)
@@ -155,7 +159,7 @@ def frame_evidence(features: np.ndarray, labels: np.ndarray) -> KeypointEvidence
         slot_offsets=np.zeros(len(slots) + 1, dtype=np.int64),
         channels=empty.astype(np.int32),
         values=empty.astype(np.float32),
-        slot_norms=np.sqrt(np.einsum("dn,dn->n", flat, flat)[slots]).astype(np.float32),
+        slot_norms=empty.astype(np.float32),
         grid=(h, w),
         feature_dim=d,
         frame_features=flat,

@@ -49,3 +49,13 @@ def learn_projection(rows: np.ndarray, dims: int) -> np.ndarray:
 def project_rows(rows: np.ndarray, projection: np.ndarray) -> np.ndarray:
     """(S, D) feature vectors -> (S, k) their coordinates on the projection's directions (float32)."""
     return np.asarray(rows, dtype=np.float32) @ projection
+
+
+def project_slots(features: np.ndarray, slots: np.ndarray, projection: np.ndarray) -> np.ndarray:
+    """(S, k) coordinates on the projection's directions of a frame's (D, N) features at its S slot locations
+    (float32)."""
+    # Gathering a location's D values costs about two thirds of projecting them: where the slots are fewer
+    # than half the locations only theirs are gathered and projected, otherwise every location is projected.
+    if 2 * len(slots) < features.shape[1]:
+        return np.take(features, slots, axis=1).T @ projection
+    return (features.T @ projection)[slots]
