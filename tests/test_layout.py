@@ -10,9 +10,9 @@ import pytest
 
 from lostx.core.config import Config, LayoutConfig
 from lostx.core.layout.classes import CHANNELS, OBJECT, ROAD, LayoutClasses
-from lostx.core.layout.compare import GridStack, similarity
+from lostx.core.layout.compare import GridStack, similarities, similarity
 from lostx.core.layout.describer import FramePlacer, LiveLayout, Placed, map_grid, spread
-from lostx.core.layout.grid import LayoutGrid, accumulate, grid_shape, pack, unpack
+from lostx.core.layout.grid import LayoutGrid, accumulate, grid_shape, pack, unpack, unpack_levels
 from lostx.core.layout.projection import FramePoints
 from lostx.core.match.costs import EveryFrameCosts
 from lostx.core.match.matcher import PlaceMatcher
@@ -65,6 +65,51 @@ def test_both_headings_in_one_pass_equal_each_compared_alone(rng, monkeypatch):
     for heading in (0, 1):
         large = combined.LayoutComparison(query, stack, WEIGHTS, shifts=1, min_cells=5)
         assert np.allclose(large.heading(heading).at(refs), alone[heading][refs], atol=1e-6)
+
+
+def _pearson_mean(query: LayoutGrid, grid: LayoutGrid, weights: np.ndarray, min_cells: int) -> float:
+    """The similarity as defined, one pair at a time: the weighted mean over channels of the Pearson correlation
+    over the cells both grids observed (0 for a channel constant there)."""
+    common = query.mask & grid.mask
+    if common.sum() < min_cells:
+        return -np.inf
+    r = []
+    for x, y in zip(query.values[:, common].astype(np.float64), grid.values[:, common].astype(np.float64)):
+        x, y = x - x.mean(), y - y.mean()
+        var = (x @ x) * (y @ y)
+        r.append((x @ y) / np.sqrt(var) if var > 1e-12 else 0.0)
+    return float(np.average(r, weights=weights))
+
+
+@pytest.mark.parametrize("seen", [0.3, 0.6, 0.97])
+def test_comparisons_equal_each_pair_compared_alone(rng, seen):
+    """A stack's sums over the cells a query observed (the grids' totals less the cells it missed, or the cells it
+    saw, whichever are fewer), a map's grids kept as their stored levels: the similarity of each pair as defined."""
+    shape = (20, 15)
+    grids = [_grid(rng, shape, seen=rng.uniform(0.5, 1.0)) for _ in range(40)]
+    grids[7] = LayoutGrid(grids[7].values, np.ones(shape, dtype=bool))
+    grids[9] = LayoutGrid(grids[9].values * 0 + 0.5, grids[9].mask)  # constant: no correlation
+    stored = [pack(g) for g in grids]
+    levels = GridStack(*unpack_levels(np.stack([v for v, _ in stored]), np.stack([b for _, b in stored]), shape))
+    for query in (_grid(rng, shape, seen=seen), _grid(rng, shape, seen=seen).turned()):
+        for stack, maps in ((GridStack.of(grids), grids), (levels, [unpack(v, b, shape) for v, b in stored])):
+            expected = [_pearson_mean(query, g, WEIGHTS, 25) for g in maps]
+            assert np.allclose(similarity(query, stack, WEIGHTS, min_cells=25), expected, atol=1e-5)
+            assert np.allclose(similarities([query, query.turned()], stack, WEIGHTS, min_cells=25)[1],
+                               [_pearson_mean(query.turned(), g, WEIGHTS, 25) for g in maps], atol=1e-5)
+
+
+def test_identical_grids_tie_exactly_wherever_they_lie(rng):
+    """A stack's grids are compared alike wherever they lie in it (a map frame repeated where the camera stood still
+    ties with its copies, and the lower index wins as with any tie)."""
+    grid, other = _grid(rng, seen=0.95), _grid(rng, seen=0.95)
+    for n in (5, 77, 128, 1001):
+        stack = GridStack.of([grid if i % 3 else other for i in range(n)])
+        for query in (_grid(rng, seen=0.9), _grid(rng, seen=0.4)):
+            scores = similarities([query, query.turned()], stack, WEIGHTS, shifts=1, min_cells=5)
+            assert np.all(scores[:, 1::3] == scores[:, 1:2]) and np.all(scores[:, ::3] == scores[:, :1])
+            sub = stack.rows(np.arange(0, n, 2))
+            assert np.array_equal(similarities([query], sub, WEIGHTS, 1, 5)[0], scores[0, ::2])
 
 
 def test_too_few_cells_in_common_give_no_similarity(rng):

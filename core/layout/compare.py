@@ -10,6 +10,10 @@ products (:class:`GridStack` holds the map side ready for them):
 
 A channel constant over the common cells has no correlation (0); fewer than ``min_cells`` common cells give
 no similarity at all (-inf).
+
+The map grid's own sums n, S_y and S_yy run over the cells the query observed, nearly all of them: they are
+the grid's totals less its cells the query did not observe (or, for a query that observed few, the sums over
+those it did), so that a comparison reads only a few of the map's cells for them, and no squares at all.
 """
 
 from __future__ import annotations
@@ -22,19 +26,33 @@ from .grid import LayoutGrid
 
 
 class GridStack:
-    """N grids (all of one shape) prepared as the map side of comparisons: each array grid-major, so that a
-    comparison streams through it once with every query variant at a time, and a subset of grids is a gather
-    of whole rows."""
+    """N grids (all of one shape) prepared as the map side of comparisons: the mask and the values (zero where
+    unobserved) of every grid and cell, with each grid's totals over its cells.
 
-    def __init__(self, values: np.ndarray, masks: np.ndarray) -> None:
-        """``values`` (N, C, A, X), ``masks`` (N, A, X)."""
+    The values are kept in units of ``1 / scale`` per channel: a map's are its stored one-byte levels, whose sums
+    (and the totals less a few cells) are exact integers."""
+
+    def __init__(self, values: np.ndarray, masks: np.ndarray, scale: np.ndarray | None = None) -> None:
+        """``values`` (N, C, A, X) in units of ``1 / scale`` ((C,), default 1), ``masks`` (N, A, X)."""
         n, c, a, x = values.shape
-        self.n, self.channels, self.shape = n, c, (a, x)
-        m = masks.reshape(n, 1, a * x).astype(np.float32)
-        v = values.reshape(n, c, a * x).astype(np.float32) * m
-        self.mask = np.ascontiguousarray(m[:, 0])  # (N, P)
-        self.values = np.ascontiguousarray(v.transpose(1, 0, 2))  # (C, N, P), zero where unobserved
-        self.squares = self.values * self.values  # (C, N, P)
+        mask = masks.reshape(n, 1, a * x).astype(np.float32)
+        grids = np.concatenate([mask, values.reshape(n, c, a * x).astype(np.float32) * mask], axis=1)
+        cells = np.ascontiguousarray(grids.transpose(1, 2, 0))
+        self._set(grids, cells, np.ones(c) if scale is None else np.asarray(scale, dtype=np.float64).reshape(c),
+                  cells.sum(axis=1, dtype=np.float64), np.einsum("cpn,cpn->cn", cells[1:], cells[1:], dtype=np.float64))
+
+    def _set(self, grids: np.ndarray, cells: np.ndarray, scale: np.ndarray, totals: np.ndarray,
+             square_totals: np.ndarray) -> None:
+        self.n, self.channels = grids.shape[0], grids.shape[1] - 1
+        self.grids = grids
+        """(N, 1 + C, P) each grid's mask and values: a subset of the grids is a gather of whole rows."""
+        self.cells = cells
+        """(1 + C, P, N) the same, cell-major: a set of cells is a gather of whole rows."""
+        self.scale = scale
+        self.totals = totals
+        """(1 + C, N) float64: each grid's observed cells and sum of values over them."""
+        self.square_totals = square_totals
+        """(C, N) float64: each grid's sum of squared values."""
 
     @classmethod
     def of(cls, grids: Sequence[LayoutGrid]) -> "GridStack":
@@ -43,10 +61,9 @@ class GridStack:
     def rows(self, indices: np.ndarray) -> "GridStack":
         """The grids ``indices`` as a stack of their own (their prepared arrays taken as they are)."""
         out = GridStack.__new__(GridStack)
-        out.n, out.channels, out.shape = len(indices), self.channels, self.shape
-        out.mask = self.mask[indices]
-        out.values = self.values[:, indices]
-        out.squares = self.squares[:, indices]
+        grids = self.grids[indices]
+        out._set(grids, np.ascontiguousarray(grids.transpose(1, 2, 0)), self.scale, self.totals[:, indices],
+                 self.square_totals[:, indices])
         return out
 
 
@@ -74,26 +91,59 @@ def similarities(queries: Sequence[LayoutGrid], maps: GridStack, weights: np.nda
                  min_cells: int = 1) -> np.ndarray:
     """(Q, N) :func:`similarity` of several queries (a frame's grid under both headings, its turns) in one
     pass over the map's grids."""
-    c, k = maps.channels, 2 * shifts + 1
+    k = 2 * shifts + 1
     variants = [shifted(g, s) for g in queries for s in range(-shifts, shifts + 1)]
-    v = len(variants)
+    score = correlations(variants, maps, weights, min_cells)
+    return score.reshape(len(queries), k, maps.n).max(axis=1)
+
+
+def correlations(variants: Sequence[LayoutGrid], maps: GridStack, weights: np.ndarray, min_cells: int) -> np.ndarray:
+    """(V, N) the weighted mean masked correlation of each query variant with each map grid."""
+    c = maps.channels
     m = np.stack([g.mask.ravel() for g in variants]).astype(np.float32)  # (V, P)
     q = np.stack([g.values.reshape(c, -1) for g in variants]).astype(np.float32) * m[:, None, :]  # (V, C, P)
-    # Query-side sums over each map grid's mask: n, S_x, S_xx.
-    own = maps.mask @ np.concatenate([m[:, None, :], q, q * q], axis=1).reshape(v * (1 + 2 * c), -1).T
-    own = own.reshape(maps.n, v, 1 + 2 * c).transpose(1, 2, 0)  # (V, 1 + 2C, N)
-    n, sx, sxx = own[:, :1], own[:, 1 : 1 + c], own[:, 1 + c :]
-    # Map-side sums over the query's mask, and the products, channel by channel: S_xy and S_y, then S_yy.
-    right = np.concatenate([q.transpose(1, 2, 0), np.broadcast_to(m.T, (c, *m.T.shape))], axis=2)  # (C, P, 2V)
-    cross = np.matmul(maps.values, right)  # (C, N, 2V)
-    sxy, sy = cross[:, :, :v].transpose(2, 0, 1), cross[:, :, v:].transpose(2, 0, 1)  # (V, C, N)
-    syy = (maps.squares.reshape(-1, m.shape[1]) @ m.T).reshape(c, maps.n, v).transpose(2, 0, 1)
+    n, sy, syy = observed_sums(maps, m)
+    sx, sxx, sxy = query_sums(maps, q)
     with np.errstate(divide="ignore", invalid="ignore"):
         count = np.maximum(n, 1.0)
         cov = sxy - sx * sy / count
         var = (sxx - sx * sx / count) * (syy - sy * sy / count)
         r = np.where(var > 1e-12, cov / np.sqrt(np.maximum(var, 1e-12)), 0.0)
     w = np.asarray(weights, dtype=np.float64)
-    score = np.tensordot(w / w.sum(), r, axes=(0, 1))  # (V, N)
-    score = np.where(n[:, 0] >= min_cells, score, -np.inf)
-    return score.reshape(len(queries), k, maps.n).max(axis=1)
+    score = (r * (w / w.sum())[:, None]).sum(axis=1)  # (V, N), each sum channel by channel in order (no BLAS)
+    return np.where(n[:, 0] >= min_cells, score, -np.inf)
+
+
+def observed_sums(maps: GridStack, m: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """n (V, 1, N), S_y and S_yy (V, C, N), float64: each map grid's count, sum and sum of squares over the cells
+    each variant (mask ``m`` (V, P)) observed. Summed over the fewer of the cells some variant observed and those
+    some variant did not (the grid's totals less them), so that a query observing nearly every cell reads only a
+    few of the map's. A map's levels are integers: their sums (up to 258 cells of 255^2) are exact either way."""
+    seen, missed = m.any(axis=0), ~m.all(axis=0)
+    if seen.sum() <= missed.sum():
+        cells, weight, base, squares = np.flatnonzero(seen), m, 0.0, 0.0
+    else:
+        cells, weight = np.flatnonzero(missed), m - 1.0
+        base, squares = maps.totals, maps.square_totals
+    weight = np.ascontiguousarray(weight[:, cells]).T  # (R, V)
+    taken = maps.cells[:, cells, :]  # (1 + C, R, N)
+    # As in query_sums, the map grids are the rows of the left operand, both operands transposed.
+    sums = base + np.matmul(taken.transpose(0, 2, 1), weight).transpose(2, 0, 1)  # (V, 1 + C, N)
+    sq = squares + np.matmul((taken[1:] * taken[1:]).transpose(0, 2, 1), weight).transpose(2, 0, 1)
+    unit = 1.0 / maps.scale[:, None]
+    return sums[:, :1], sums[:, 1:] * unit, sq * (unit * unit)
+
+
+def query_sums(maps: GridStack, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """S_x, S_xx and S_xy (V, C, N), float64: the query variants' (values ``q`` (V, C, P), zero where unobserved)
+    sums and sums of squares over each map grid's observed cells, and their products with its values.
+
+    Each product has the map grid as a row of the left operand and both operands transposed (what BLAS is given),
+    so that every map grid's sums are computed alike, wherever it lies in the stack: identical grids tie exactly."""
+    v, c, p = q.shape
+    own = maps.cells[0].T @ np.concatenate([q, q * q], axis=1).reshape(2 * v * c, p).T  # (N, 2VC)
+    own = own.T.reshape(v, 2, c, maps.n).astype(np.float64)
+    per_channel = np.ascontiguousarray(q.transpose(1, 0, 2))  # (C, V, P)
+    cross = np.matmul(maps.cells[1:].transpose(0, 2, 1), per_channel.transpose(0, 2, 1))  # (C, N, V)
+    sxy = cross.transpose(2, 0, 1) / maps.scale[:, None]
+    return own[:, 0], own[:, 1], sxy

@@ -126,3 +126,14 @@ def unpack(values: np.ndarray, bits: np.ndarray, shape: tuple[int, int]) -> Layo
     grid = np.asarray(values, dtype=np.float32).reshape(len(CHANNELS), rows, cols) / _SCALE
     mask = np.unpackbits(np.asarray(bits, dtype=np.uint8))[: rows * cols].reshape(rows, cols).astype(bool)
     return LayoutGrid(grid, mask)
+
+
+def unpack_levels(values: np.ndarray, bits: np.ndarray, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray,
+                                                                                       np.ndarray]:
+    """Many stored grids (rows of :func:`pack`'s values and mask bits) as they are stored: (N, C, A, X) one-byte
+    levels, (N, A, X) masks, and each channel's (C,) levels per unit (a value is its level / scale, as
+    :func:`unpack` gives it)."""
+    rows, cols = shape
+    levels = np.asarray(values, dtype=np.uint8).reshape(len(values), len(CHANNELS), rows, cols)
+    masks = np.unpackbits(np.asarray(bits, dtype=np.uint8), axis=1)[:, : rows * cols]
+    return levels, masks.reshape(len(values), rows, cols).astype(bool), _SCALE.ravel().astype(np.float64)

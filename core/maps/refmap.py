@@ -49,7 +49,7 @@ from ..backbones import BackboneInfo, Quantisation
 from ..config import LayoutConfig
 from ..geometry import CameraGeometry
 from ..layout.compare import GridStack
-from ..layout.grid import LayoutGrid, grid_shape, unpack
+from ..layout.grid import LayoutGrid, grid_shape, unpack, unpack_levels
 from ..describe.keypoints import KeypointEvidence
 from ..describe.lost import DescriptorStats
 from ..errors import MapError
@@ -195,9 +195,9 @@ class ReferenceMap:
         if self._layout_stack is None:
             settings = self.layout_settings
             assert settings is not None
-            shape = grid_shape(settings)
-            grids = [unpack(v, m, shape) for v, m in zip(self._arrays["layout_values"], self._arrays["layout_mask"])]
-            self._layout_stack = GridStack.of(grids)
+            # The stored levels as they are: their sums over cells are exact.
+            self._layout_stack = GridStack(*unpack_levels(self._arrays["layout_values"], self._arrays["layout_mask"],
+                                                          grid_shape(settings)))
         return self._layout_stack
 
     @property
