@@ -48,6 +48,7 @@ next good frame.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import time
 from typing import Callable
 
@@ -56,16 +57,17 @@ import numpy as np
 from .backbones import Backbone
 from .config import Config, HeadingConfig, TrackerConfig, looks_up_costs
 from .decide.calibration import PLACES, UNCALIBRATED, Calibration, load, settings_key, store
-from .decide.estimate import Candidate, Estimate, Evidence
+from .decide.estimate import Candidate, DeferredCorrespondences, Estimate, Evidence
 from .decide.tail import leads
 from .describe.inputcheck import InputCheck
+from .describe.keypoints import KeypointEvidence
 from .errors import InputError, StateError
 from .frame import Frame, Heading
 from .images import check_frame
 from .maps.refmap import ReferenceMap
 from .match.costs import EveryFrameCosts, LookedUpCosts
 from .match.matcher import FrameMatch, MatchResult, PlaceMatcher
-from .match.verify import verify
+from .match.verify import Correspondences, verify
 from .route.direction import DirectionFilter
 from .route.heading import HeadingFilter
 from .route.sequence import SequenceFilter, signed
@@ -302,27 +304,34 @@ class Localizer:
         )
 
     def _evidence(self, result: MatchResult, index: int) -> Evidence:
-        """What it takes to draw the answer (and the single-frame best): their correspondences."""
+        """What it takes to draw the answer (and the single-frame best): their correspondences (computed when a
+        drawing asks for them)."""
         correspondences = {}
         if result.verification is not None:
+            query = self.matcher.last_evidence
             for reference in dict.fromkeys((index, result.best)):
-                corr = result.correspondences_for(reference)
-                if corr is None and self.matcher.last_evidence is not None:
-                    # The sequence answer was not among the verified candidates: verify it too, to draw it.
-                    distance = float(result.distances[0]) if len(result.distances) else 1.0
-                    extra = verify(self.matcher.last_evidence, self.map.evidence([reference]), np.array([distance]),
-                                   opposite=result.heading == "opposite", scoring=self.config.verify.scoring,
-                                   density=self.config.verify.density_filter)
-                    corr = extra.correspondences(0)
-                correspondences[reference] = corr
+                correspondences[reference] = functools.partial(self._correspondences, result, reference, query)
         layout = None
         if result.layout is not None:
             answer = self.map.layout_grid(index)
             # The query's grid as it is, the answer's turned where the query views the route the other way.
             layout = (result.layout.query.turned() if result.heading == "opposite" else result.layout.query,
                       answer.turned() if result.heading == "opposite" else answer)
-        return Evidence(query_labels=result.query_labels, correspondences=correspondences,
+        return Evidence(query_labels=result.query_labels, correspondences=DeferredCorrespondences(correspondences),
                         grid=getattr(self.map, "grid", None), layout=layout)
+
+    def _correspondences(self, result: MatchResult, reference: int,
+                         query: KeypointEvidence | None) -> Correspondences | None:
+        """The surviving correspondences of the frame (its keypoint evidence ``query``) with map frame ``reference``."""
+        corr = result.correspondences_for(reference)
+        if corr is None and query is not None:
+            # The sequence answer was not among the verified candidates: verify it too, to draw it.
+            distance = float(result.distances[0]) if len(result.distances) else 1.0
+            extra = verify(query, self.map.evidence([reference]), np.array([distance]),
+                           opposite=result.heading == "opposite", scoring=self.config.verify.scoring,
+                           density=self.config.verify.density_filter)
+            corr = extra.correspondences(0)
+        return corr
 
     def _position(self, index: int) -> tuple[float, float] | None:
         if self.map.positions is None:

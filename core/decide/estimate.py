@@ -8,8 +8,9 @@ everything else is small and is what the result messages carry.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any, Callable, Iterator, Literal
 
 import numpy as np
 
@@ -36,15 +37,35 @@ class Candidate:
     """Keypoint correspondences that survived verification (0 for thumbnails)."""
 
 
+class DeferredCorrespondences(Mapping[int, "Correspondences | None"]):
+    """Correspondences by reference index, each computed when first asked for: only drawing a match needs them
+    (a reference off the shortlist is verified for it), and a localizer that draws nothing never asks."""
+
+    def __init__(self, compute: dict[int, Callable[[], Correspondences | None]]) -> None:
+        self._compute = compute
+        self._computed: dict[int, Correspondences | None] = {}
+
+    def __getitem__(self, reference: int) -> Correspondences | None:
+        if reference not in self._computed:
+            self._computed[reference] = self._compute[reference]()
+        return self._computed[reference]
+
+    def __iter__(self) -> Iterator[int]:
+        return iter(self._compute)
+
+    def __len__(self) -> int:
+        return len(self._compute)
+
+
 @dataclass
 class Evidence:
     """Heavy per-frame arrays for visualisation; never sent in result messages."""
 
     query_labels: np.ndarray | None = None
     """(h, w) uint8 grouped semantic labels of the query (not mirrored)."""
-    correspondences: dict[int, Correspondences] = field(default_factory=dict)
+    correspondences: Mapping[int, Correspondences | None] = field(default_factory=dict)
     """Surviving keypoint correspondences with the answer and with the single-frame best,
-    by reference index."""
+    by reference index (a localizer's, :class:`DeferredCorrespondences`, computed when asked for)."""
     grid: tuple[int, int] | None = None
     """(h, w) feature grid the keypoint coordinates refer to."""
     sequence_window: np.ndarray | None = None
