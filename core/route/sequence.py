@@ -135,6 +135,13 @@ class SequenceFilter:
         self._speed = np.zeros(0)
         self._costs = np.zeros((0, self.length))
         self._best_result: SequenceResult | None = None
+        self._changed()
+
+    def _changed(self) -> None:
+        """The trajectories or their costs changed: their scores and positions are computed again when next asked
+        (once a frame, however many of the frame's decisions ask)."""
+        self._means: np.ndarray | None = None
+        self._ends: np.ndarray | None = None
 
     @property
     def frames(self) -> int:
@@ -175,6 +182,7 @@ class SequenceFilter:
         """
         if self.route is not None and progress is None:
             raise ValueError("a sequence filter following the distance travelled needs each frame's progress")
+        self._changed()
         if self._replaces(progress):
             # The newest frame is still within ``spacing`` of the one before it: the new frame takes its column (and
             # its trajectories' anchors), so that the window keeps its reach in metres at any frame rate or speed.
@@ -194,10 +202,11 @@ class SequenceFilter:
             # Slide the window: drop trajectories anchored before it, shift the cost columns left.
             self._keep(self._anchor_t >= self._times[0])
             self._costs = np.concatenate([self._costs[:, 1:], np.full((len(self._costs), 1), np.nan)], axis=1)
+        ends = self._positions()
         if len(self._anchor_t):
             # The newest frame's cost on every live trajectory.
-            self._costs[:, -1] = self._lookup(np.array(t), self.positions())
-        anchors = self._new_anchors(t, candidates, seeds) if scores is not None else np.zeros(0)
+            self._costs[:, -1] = self._lookup(np.array(t), ends)
+        anchors = self._new_anchors(t, candidates, seeds, ends) if scores is not None else np.zeros(0)
 
         # Spawn the trajectories anchored at the newest frame, with their costs over the window.
         spawn = self.speeds if speeds is None or len(speeds) == 0 else np.asarray(speeds, dtype=np.float64)
@@ -214,6 +223,7 @@ class SequenceFilter:
         self._anchor_r = np.concatenate([self._anchor_r, new_r])
         self._speed = np.concatenate([self._speed, new_v])
         self._costs = np.concatenate([self._costs, new_costs])
+        self._changed()
         self._best_result = self._best()
         return self._best_result
 
@@ -226,14 +236,14 @@ class SequenceFilter:
         """Keep only the trajectories ``live``."""
         self._anchor_t, self._anchor_r, self._speed = self._anchor_t[live], self._anchor_r[live], self._speed[live]
         self._anchor_q, self._costs = self._anchor_q[live], self._costs[live]
+        self._changed()
 
-    def _new_anchors(self, t: int, candidates: np.ndarray, seeds: np.ndarray | None) -> np.ndarray:
+    def _new_anchors(self, t: int, candidates: np.ndarray, seeds: np.ndarray | None, ends: np.ndarray) -> np.ndarray:
         """The candidates, and the ``anchors`` lowest costs of frame t: over the map where every cost is
-        known, else among the seeds' neighbourhoods and where the live trajectories pass."""
+        known, else among the seeds' neighbourhoods and where the live trajectories pass (at ``ends``)."""
         chosen = np.unique(np.asarray(candidates, dtype=np.int64))
         if self.anchors == 0:
             return chosen.astype(np.float64)
-        ends = self.positions()
         passing = np.rint(ends[np.isfinite(ends)]).astype(np.int64)[:, None] + np.arange(-self.radius, self.radius + 1)
         seeds = np.asarray(seeds if seeds is not None else [], dtype=np.int64)
         around = seeds[:, None] + np.arange(-self.neighbourhood, self.neighbourhood + 1)
@@ -246,19 +256,27 @@ class SequenceFilter:
         keep = self._speed * sign >= 0
         self._anchor_t, self._anchor_r, self._anchor_q = self._anchor_t[keep], self._anchor_r[keep], self._anchor_q[keep]
         self._speed, self._costs = self._speed[keep], self._costs[keep]
+        self._changed()
 
     def scores(self) -> np.ndarray:
         """Mean cost of every live trajectory over the frames in the window (following the distance travelled:
-        those within ``reach`` metres of the newest)."""
-        window = self._costs[:, self.length - len(self._times) :]
-        if self.route is not None and self.reach is not None:
-            progress = np.asarray(self._progress)
-            window = window[:, np.abs(progress[-1] - progress) <= self.reach + 1e-9]
-        return window.sum(axis=1) / window.shape[1]
+        those within ``reach`` metres of the newest); read-only."""
+        if self._means is None:
+            window = self._costs[:, self.length - len(self._times) :]
+            if self.route is not None and self.reach is not None:
+                progress = np.asarray(self._progress)
+                window = window[:, np.abs(progress[-1] - progress) <= self.reach + 1e-9]
+            self._means = _read_only(window.sum(axis=1) / window.shape[1])
+        return self._means
 
     def positions(self) -> np.ndarray:
         """Position of every live trajectory at the newest frame (a reference index, fractional; NaN off the map
-        where the distance travelled is followed)."""
+        where the distance travelled is followed); read-only."""
+        if self._ends is None:
+            self._ends = _read_only(self._positions())
+        return self._ends
+
+    def _positions(self) -> np.ndarray:
         if self.route is None:
             return self._anchor_r + self._speed * (self._t - self._anchor_t)
         return self._at_route(self._on_route(self._anchor_r) + self._speed * (self._progress[-1] - self._anchor_q))
@@ -367,7 +385,12 @@ class SequenceFilter:
         self._anchor_t, self._anchor_q = state["anchor_t"].astype(np.int64), state["anchor_q"].astype(np.float64)
         self._anchor_r, self._speed = state["anchor_r"].astype(np.float64), state["speed"].astype(np.float64)
         self._costs = state["costs"].astype(np.float64)
+        self._changed()
         best = state["best"]
         self._best_result = None if best is None else SequenceResult(float(best[0]), float(best[1]), float(best[2]),
                                                                      int(best[3]), np.asarray(best[4]))
 
+
+def _read_only(values: np.ndarray) -> np.ndarray:
+    values.flags.writeable = False
+    return values
