@@ -12,7 +12,7 @@ from lostx.core.config import Config, LayoutConfig
 from lostx.core.layout.classes import CHANNELS, OBJECT, ROAD, LayoutClasses
 from lostx.core.layout.compare import GridStack, similarities, similarity
 from lostx.core.layout.describer import FramePlacer, LiveLayout, Placed, map_grid, spread
-from lostx.core.layout.grid import LayoutGrid, accumulate, grid_shape, pack, unpack, unpack_levels
+from lostx.core.layout.grid import LayoutGrid, accumulate, cell_weights, grid_shape, pack, unpack, unpack_levels
 from lostx.core.layout.projection import FramePoints
 from lostx.core.match.costs import EveryFrameCosts
 from lostx.core.match.matcher import PlaceMatcher
@@ -164,6 +164,26 @@ def test_frames_are_gathered_where_the_motion_puts_them():
     back = accumulate([first], poses[:1], np.array([2 * config.centre, 0.0, np.pi]), config)
     assert np.array_equal(back.mask, ahead.turned().mask) and back.observed == 1
     assert rows == 20 and cols == 15
+
+
+def test_frames_gathered_together_land_as_each_frame_alone(rng):
+    """All frames' points moved and counted in one pass: the same sums, to the bit, as each frame's points moved
+    by its own pose and counted in turn."""
+    config = LayoutConfig()
+    rows, cols = grid_shape(config)
+    frames = [(rng.uniform([-10, -30], [70, 30], (n, 2)).astype(np.float32), rng.integers(0, 3, n).astype(np.int8),
+               rng.uniform(0.5, 9.0, n).astype(np.float32)) for n in (500, 0, 800, 1)]
+    here = np.column_stack([rng.uniform(-20, 5, 4), rng.uniform(-3, 3, 4), rng.uniform(-0.3, 0.3, 4)])
+    expected = np.zeros(3 * rows * cols)
+    for (xy, kind, weight), pose in zip(frames, here):
+        c, s = np.cos(pose[2]), np.sin(pose[2])
+        p = xy.astype(np.float64)
+        along, left = pose[0] + c * p[:, 0] - s * p[:, 1], pose[1] + s * p[:, 0] + c * p[:, 1]
+        a = np.floor((along - (config.centre - config.length / 2.0)) / config.cell).astype(np.int64)
+        x = np.floor((config.width / 2.0 - left) / config.cell).astype(np.int64)
+        inside = (a >= 0) & (a < rows) & (x >= 0) & (x < cols)
+        expected += np.bincount((kind[inside] * rows + a[inside]) * cols + x[inside], weight[inside], len(expected))
+    assert np.array_equal(cell_weights(frames, here, 3, config), expected)
 
 
 def test_frames_are_chosen_evenly_over_the_distance():

@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 
 from ..config import LayoutConfig
-from ..motion.pose import relative, transform_points
+from ..motion.pose import relative
 from .classes import CHANNELS, CONTACTS, GROUND, ROAD
 from .projection import FramePoints
 
@@ -69,24 +69,10 @@ def accumulate(frames: Sequence[FramePoints], poses: np.ndarray, current: np.nda
     """The layout grid of the camera at pose ``current`` from ``frames`` taken at ``poses`` ((k, 3) camera
     ground poses in one odometry frame; ``current`` is one of them for a live frame)."""
     rows, cols = grid_shape(config)
-    cells = rows * cols
-    rays = np.zeros(3 * cells)
-    contact = np.zeros(len(CONTACTS) * cells)
-    near = config.centre - config.length / 2.0
-    for points, pose in zip(frames, np.asarray(poses, dtype=np.float64).reshape(-1, 3)):
-        here = relative(current, pose)
-        for xy, kind, weight, target, kinds in (
-            (points.rays, points.ray_kind, points.ray_weight, rays, 3),
-            (points.contacts, points.contact_kind, points.contact_weight, contact, len(CONTACTS)),
-        ):
-            if not len(xy):
-                continue
-            moved = transform_points(here, xy.astype(np.float64))
-            a = np.floor((moved[:, 0] - near) / config.cell).astype(np.int64)
-            x = np.floor((config.width / 2.0 - moved[:, 1]) / config.cell).astype(np.int64)
-            inside = (a >= 0) & (a < rows) & (x >= 0) & (x < cols)
-            index = (kind[inside].astype(np.int64) * rows + a[inside]) * cols + x[inside]
-            target += np.bincount(index, weight[inside], kinds * cells)
+    here = relative(current, np.asarray(poses, dtype=np.float64).reshape(-1, 3))  # each frame's pose in the current's
+    rays = cell_weights([(f.rays, f.ray_kind, f.ray_weight) for f in frames], here, 3, config)
+    contact = cell_weights([(f.contacts, f.contact_kind, f.contact_weight) for f in frames], here, len(CONTACTS),
+                           config)
     rays = rays.reshape(3, rows, cols)
     contact = contact.reshape(len(CONTACTS), rows, cols)
     landed = rays.sum(axis=0)
@@ -97,6 +83,33 @@ def accumulate(frames: Sequence[FramePoints], poses: np.ndarray, current: np.nda
     values[2:] = np.minimum(np.log1p(contact), CONTACT_RANGE)
     values[:, ~mask] = 0.0
     return LayoutGrid(_smoothed(values, mask, config.blur / config.cell), mask)
+
+
+def cell_weights(points: list[tuple[np.ndarray, np.ndarray, np.ndarray]], here: np.ndarray, kinds: int,
+                 config: LayoutConfig) -> np.ndarray:
+    """(kinds * A * X,) float64: the weights of each frame's points (xy, kind, weight) by kind and cell, the frames
+    standing at poses ``here``. All frames' points are moved and counted at once, then summed frame by frame (each
+    frame's in their order): the sums, to the bit, of each frame counted alone in turn."""
+    rows, cols = grid_shape(config)
+    size = kinds * rows * cols
+    count = [len(xy) for xy, _, _ in points]
+    if not sum(count):
+        return np.zeros(size)
+    # Each point with its frame's pose (the turn's cosine and sine taken once a frame) and its frame's bins.
+    pose = np.array([(x, y, np.cos(angle), np.sin(angle), f * size) for f, (x, y, angle) in enumerate(here)])
+    x0, y0, cos, sin, offset = np.repeat(pose, count, axis=0).T
+    u, v = np.concatenate([xy for xy, _, _ in points]).T.astype(np.float64)
+    near = config.centre - config.length / 2.0
+    a = np.floor((x0 + cos * u - sin * v - near) / config.cell)
+    x = np.floor((config.width / 2.0 - (y0 + sin * u + cos * v)) / config.cell)
+    inside = (a >= 0) & (a < rows) & (x >= 0) & (x < cols)
+    kind = np.concatenate([k for _, k, _ in points]).astype(np.float64)
+    index = (offset + (kind * rows + a) * cols + x)[inside].astype(np.int64)
+    weight = np.concatenate([w for _, _, w in points])[inside]
+    total = np.zeros(size)
+    for frame in np.bincount(index, weight, len(points) * size).reshape(len(points), size):
+        total += frame
+    return total
 
 
 def _smoothed(values: np.ndarray, mask: np.ndarray, sigma: float) -> np.ndarray:

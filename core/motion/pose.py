@@ -32,13 +32,6 @@ def wrap(angle: np.ndarray | float) -> np.ndarray:
     return np.pi - np.mod(np.pi - np.asarray(angle, dtype=np.float64), 2.0 * np.pi)
 
 
-def transform_points(pose: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """Points (..., 2) given in the frame ``pose`` stands for, in the frame the pose is given in."""
-    c, s = np.cos(pose[2]), np.sin(pose[2])
-    p = np.asarray(points)
-    return np.stack([pose[0] + c * p[..., 0] - s * p[..., 1], pose[1] + s * p[..., 0] + c * p[..., 1]], axis=-1)
-
-
 def camera_on_vehicle(geometry: CameraGeometry) -> np.ndarray:
     """The camera's ground frame (on the road under the camera, along its level axis) in the vehicle's frame."""
     return np.array([geometry.x, geometry.y, np.radians(geometry.yaw)])
