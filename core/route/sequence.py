@@ -132,6 +132,7 @@ class SequenceFilter:
         self._anchor_t = np.zeros(0, dtype=np.int64)
         self._anchor_q = np.zeros(0)
         self._anchor_r = np.zeros(0)
+        self._anchor_p = np.zeros(0)  # the anchors' route positions P(r_a), fixed as r_a is
         self._speed = np.zeros(0)
         self._costs = np.zeros((0, self.length))
         self._best_result: SequenceResult | None = None
@@ -213,17 +214,22 @@ class SequenceFilter:
         new_r = np.repeat(anchors, len(spawn))
         new_v = np.tile(spawn, len(anchors))
         new_costs = np.full((len(new_r), self.length), np.nan)
+        new_p = self._on_route(new_r)
+        new_ends = new_r
         q = self._progress[-1]
         if len(new_r):
             times = np.asarray(self._times)
-            along = self._at_route(self._on_route(new_r)[:, None] + new_v[:, None] * (np.asarray(self._progress) - q))
+            along = self._at_route(new_p[:, None] + new_v[:, None] * (np.asarray(self._progress) - q))
             new_costs[:, self.length - len(times) :] = self._lookup(times[None, :], along)
+            new_ends = along[:, -1]  # their positions at the newest frame, as positions() computes them
         self._anchor_t = np.concatenate([self._anchor_t, np.full(len(new_r), t)])
         self._anchor_q = np.concatenate([self._anchor_q, np.full(len(new_r), q)])
         self._anchor_r = np.concatenate([self._anchor_r, new_r])
+        self._anchor_p = np.concatenate([self._anchor_p, new_p])
         self._speed = np.concatenate([self._speed, new_v])
         self._costs = np.concatenate([self._costs, new_costs])
         self._changed()
+        self._ends = _read_only(np.concatenate([ends, new_ends]))
         self._best_result = self._best()
         return self._best_result
 
@@ -235,7 +241,7 @@ class SequenceFilter:
     def _keep(self, live: np.ndarray) -> None:
         """Keep only the trajectories ``live``."""
         self._anchor_t, self._anchor_r, self._speed = self._anchor_t[live], self._anchor_r[live], self._speed[live]
-        self._anchor_q, self._costs = self._anchor_q[live], self._costs[live]
+        self._anchor_q, self._anchor_p, self._costs = self._anchor_q[live], self._anchor_p[live], self._costs[live]
         self._changed()
 
     def _new_anchors(self, t: int, candidates: np.ndarray, seeds: np.ndarray | None, ends: np.ndarray) -> np.ndarray:
@@ -254,9 +260,8 @@ class SequenceFilter:
         """Drop the live trajectories whose reference index runs against ``sign`` (+1 rising, -1 falling):
         once the direction of travel is known they are no longer plausible."""
         keep = self._speed * sign >= 0
-        self._anchor_t, self._anchor_r, self._anchor_q = self._anchor_t[keep], self._anchor_r[keep], self._anchor_q[keep]
-        self._speed, self._costs = self._speed[keep], self._costs[keep]
-        self._changed()
+        if not keep.all():
+            self._keep(keep)
 
     def scores(self) -> np.ndarray:
         """Mean cost of every live trajectory over the frames in the window (following the distance travelled:
@@ -279,7 +284,7 @@ class SequenceFilter:
     def _positions(self) -> np.ndarray:
         if self.route is None:
             return self._anchor_r + self._speed * (self._t - self._anchor_t)
-        return self._at_route(self._on_route(self._anchor_r) + self._speed * (self._progress[-1] - self._anchor_q))
+        return self._at_route(self._anchor_p + self._speed * (self._progress[-1] - self._anchor_q))
 
     def _on_route(self, refs: np.ndarray) -> np.ndarray:
         """The route position of reference positions (the index itself where trajectories are straight in frames)."""
@@ -328,7 +333,7 @@ class SequenceFilter:
             trajectory = self._anchor_r[best] + self._speed[best] * (times - self._anchor_t[best])
             rate = float(self._speed[best])
         else:
-            trajectory = self._at_route(self._on_route(self._anchor_r[best : best + 1])
+            trajectory = self._at_route(self._anchor_p[best : best + 1]
                                         + self._speed[best] * (np.asarray(self._progress) - self._anchor_q[best]))
             rate = float(trajectory[-1] - trajectory[-2]) if len(trajectory) > 1 else 0.0
         return SequenceResult(
@@ -384,6 +389,7 @@ class SequenceFilter:
         self._progress = deque(float(q) for q in state["progress"])
         self._anchor_t, self._anchor_q = state["anchor_t"].astype(np.int64), state["anchor_q"].astype(np.float64)
         self._anchor_r, self._speed = state["anchor_r"].astype(np.float64), state["speed"].astype(np.float64)
+        self._anchor_p = self._on_route(self._anchor_r)
         self._costs = state["costs"].astype(np.float64)
         self._changed()
         best = state["best"]
