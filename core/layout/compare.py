@@ -29,14 +29,17 @@ class GridStack:
     """N grids (all of one shape) prepared as the map side of comparisons: the mask and the values (zero where
     unobserved) of every grid and cell, with each grid's totals over its cells.
 
-    The values are kept in units of ``1 / scale`` per channel: a map's are its stored one-byte levels, whose sums
-    (and the totals less a few cells) are exact integers."""
+    The values are kept in units of ``1 / scale`` per channel: a map's are its stored one-byte levels (a quarter of
+    the bytes to read per comparison, each block of grids widened to float32 as it is used), whose sums (and the
+    totals less a few cells) are exact integers."""
 
     def __init__(self, values: np.ndarray, masks: np.ndarray, scale: np.ndarray | None = None) -> None:
-        """``values`` (N, C, A, X) in units of ``1 / scale`` ((C,), default 1), ``masks`` (N, A, X)."""
+        """``values`` (N, C, A, X) in units of ``1 / scale`` ((C,), default 1; one-byte levels are kept as they
+        are, anything else as float32), ``masks`` (N, A, X)."""
         n, c, a, x = values.shape
-        mask = masks.reshape(n, 1, a * x).astype(np.float32)
-        grids = np.concatenate([mask, values.reshape(n, c, a * x).astype(np.float32) * mask], axis=1)
+        dtype = np.uint8 if values.dtype == np.uint8 else np.float32
+        mask = masks.reshape(n, 1, a * x).astype(dtype)
+        grids = np.concatenate([mask, values.reshape(n, c, a * x).astype(dtype) * mask], axis=1)
         cells = np.ascontiguousarray(grids.transpose(1, 2, 0))
         self._set(grids, cells, np.ones(c) if scale is None else np.asarray(scale, dtype=np.float64).reshape(c),
                   cells.sum(axis=1, dtype=np.float64), np.einsum("cpn,cpn->cn", cells[1:], cells[1:], dtype=np.float64))
@@ -48,6 +51,8 @@ class GridStack:
         """(N, 1 + C, P) each grid's mask and values: a subset of the grids is a gather of whole rows."""
         self.cells = cells
         """(1 + C, P, N) the same, cell-major: a set of cells is a gather of whole rows."""
+        self.blocks = [(block, np.ascontiguousarray(cells[:, :, block])) for block in blocks(self.n)]
+        """The cells of each block of grids (:func:`blocks`), each whole in memory: widened at once."""
         self.scale = scale
         self.totals = totals
         """(1 + C, N) float64: each grid's observed cells and sum of values over them."""
@@ -126,10 +131,10 @@ def observed_sums(maps: GridStack, m: np.ndarray) -> tuple[np.ndarray, np.ndarra
         cells, weight = np.flatnonzero(missed), m - 1.0
         base, squares = maps.totals, maps.square_totals
     weight = np.ascontiguousarray(weight[:, cells]).T  # (R, V)
-    taken = maps.cells[:, cells, :]  # (1 + C, R, N)
+    taken = maps.cells[:, cells, :].astype(np.float32)  # (1 + C, R, N)
     # As in query_sums, the map grids are the rows of the left operand, both operands transposed.
-    sums = base + np.matmul(taken.transpose(0, 2, 1), weight).transpose(2, 0, 1)  # (V, 1 + C, N)
-    sq = squares + np.matmul((taken[1:] * taken[1:]).transpose(0, 2, 1), weight).transpose(2, 0, 1)
+    sums = base + _grid_last(np.matmul(taken.transpose(0, 2, 1), weight))  # (V, 1 + C, N)
+    sq = squares + _grid_last(np.matmul((taken[1:] * taken[1:]).transpose(0, 2, 1), weight))
     unit = 1.0 / maps.scale[:, None]
     return sums[:, :1], sums[:, 1:] * unit, sq * (unit * unit)
 
@@ -139,11 +144,36 @@ def query_sums(maps: GridStack, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, 
     sums and sums of squares over each map grid's observed cells, and their products with its values.
 
     Each product has the map grid as a row of the left operand and both operands transposed (what BLAS is given),
-    so that every map grid's sums are computed alike, wherever it lies in the stack: identical grids tie exactly."""
+    over blocks of two grids or more, so that every map grid's sums are computed alike, wherever it lies in the
+    stack: identical grids tie exactly."""
     v, c, p = q.shape
-    own = maps.cells[0].T @ np.concatenate([q, q * q], axis=1).reshape(2 * v * c, p).T  # (N, 2VC)
-    own = own.T.reshape(v, 2, c, maps.n).astype(np.float64)
-    per_channel = np.ascontiguousarray(q.transpose(1, 0, 2))  # (C, V, P)
-    cross = np.matmul(maps.cells[1:].transpose(0, 2, 1), per_channel.transpose(0, 2, 1))  # (C, N, V)
-    sxy = cross.transpose(2, 0, 1) / maps.scale[:, None]
-    return own[:, 0], own[:, 1], sxy
+    own_right = np.concatenate([q, q * q], axis=1).reshape(2 * v * c, p).T  # (P, 2VC)
+    cross_right = np.ascontiguousarray(q.transpose(1, 0, 2)).transpose(0, 2, 1)  # (C, P, V)
+    own = np.empty((maps.n, 2 * v * c), dtype=np.float32)
+    cross = np.empty((maps.n, c, v), dtype=np.float32)
+    widened = np.empty(maps.blocks[0][1].size if maps.n else 0, dtype=np.float32)  # one block's cells, in cache
+    for block, stored in maps.blocks:
+        cells = widened[: stored.size].reshape(stored.shape)  # (1 + C, P, n)
+        np.copyto(cells, stored)
+        np.matmul(cells[0].T, own_right, out=own[block])
+        np.matmul(cells[1:].transpose(0, 2, 1), cross_right, out=cross[block].transpose(1, 0, 2))
+    own = np.ascontiguousarray(own.T, dtype=np.float64).reshape(v, 2, c, maps.n)
+    return own[:, 0], own[:, 1], _grid_last(cross.transpose(1, 0, 2)) / maps.scale[:, None]
+
+
+def _grid_last(sums: np.ndarray) -> np.ndarray:
+    """(C, N, V) float32 sums as (V, C, N) float64, contiguous for the arithmetic that follows."""
+    return np.ascontiguousarray(sums.transpose(2, 0, 1), dtype=np.float64)
+
+
+BLOCK = 128
+"""Map grids compared at a time: their cells widened to float32 (8 kB a grid) stay in the cache."""
+
+
+def blocks(n: int) -> list[slice]:
+    """``n`` grids in blocks of ``BLOCK``, the last one of two grids or more (one grid alone would take another
+    path through BLAS, summing its products in another order)."""
+    starts = list(range(0, n, BLOCK))
+    if len(starts) > 1 and n - starts[-1] < 2:
+        starts.pop()
+    return [slice(a, b) for a, b in zip(starts, starts[1:] + [n])]
