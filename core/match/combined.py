@@ -57,13 +57,13 @@ class LayoutComparison:
 
     def _compare(self, maps: GridStack, headings: tuple[int, ...]) -> np.ndarray:
         """(len(headings), N), best over the turns and sideways shifts: every map grid as it lies, then each
-        heading's ``REFINE`` most similar also shifted (a shift only ever finds a better fit, and only the best
+        heading's ``REFINE`` most similar shifted (a shift only ever finds a better fit, and only the best
         ones matter)."""
         views, turns = [self.views[h] for h in headings], len(self.turns)
 
         def compare(stack: GridStack, shifts: int) -> np.ndarray:
             queries = [view.rotated(angle) for view in views for angle in self.turns]
-            scores = similarities(queries, stack, self.weights, shifts, self.min_cells)
+            scores = similarities(queries, stack, self.weights, shifts, self.min_cells, aside=shifts > 0)
             return scores.reshape(len(views), turns, stack.n).max(axis=1)
 
         scores = compare(maps, 0)
