@@ -105,9 +105,10 @@ class FramePlacer:
         height, width = frame.image.shape[:2]
         ids = label_map.astype(np.intp, copy=False)
         whole = box is None or tuple(box) == (0.0, 0.0, float(width), float(height))
-        # Visual odometry takes masks over the whole frame; a label map of part of it gives none.
-        # The road alone: kerbs and sidewalks stand above its plane.
-        ground, movers = (self.classes.ray[ids] == ROAD, self.classes.is_mover[ids]) if whole else (None, None)
+        # Visual odometry takes masks over the whole frame; a label map of part of it gives none (nor does a frame
+        # its odometry places). The road alone: kerbs and sidewalks stand above its plane.
+        masks = whole and not self.odometer.uses_odometry(frame)
+        ground, movers = (self.classes.ray[ids] == ROAD, self.classes.is_mover[ids]) if masks else (None, None)
         placement = self.odometer.place(frame, ground, movers)
         if placement is None:
             return None

@@ -94,6 +94,8 @@ class GroundProjector:
         """Each label pixel's square (-1: its ray does not land within range)."""
         self.square[valid] = square.ravel()
         self.n_squares = int(square.max()) + 1 if len(square) else 0
+        self.landing = np.flatnonzero(valid)
+        """The label pixels whose rays land within range (flat indices): the only ones a frame looks up."""
         count = np.bincount(self.square[valid], minlength=self.n_squares)[:, None]
         self.square_centre = (np.stack([np.bincount(self.square[valid], points[valid][:, k], self.n_squares)
                                         for k in (0, 1)], axis=1) / np.maximum(count, 1)).astype(np.float32)
@@ -120,15 +122,16 @@ class GroundProjector:
             raise ValueError(f"label map of shape {labels.shape}; this projector takes {self.shape}")
         c = self.classes
         ids = labels.astype(np.intp, copy=False)
-        kind = c.ray[ids]
-        use = (self.square >= 0) & (kind >= 0)
-        counts = np.bincount(self.square[use] * 3 + kind[use], minlength=3 * self.n_squares)
+        kind = c.ray[ids.ravel()[self.landing]]
+        use = kind >= 0
+        counts = np.bincount(self.square.ravel()[self.landing][use] * 3 + kind[use], minlength=3 * self.n_squares)
         held = np.flatnonzero(counts)
 
-        # The ground run at the bottom of each sampled column, and the first thing above it.
+        # The ground run at the bottom of each sampled column (up to its first pixel that is not ground), and the
+        # first thing above it.
         cols = self.columns
-        ground = c.is_ground[ids[: self.rows, cols]]
-        run = np.cumprod(ground[::-1], axis=0).sum(axis=0)
+        ground = c.is_ground[ids[: self.rows, cols]][::-1]
+        run = np.where(ground.all(axis=0), len(ground), np.argmin(ground, axis=0))
         top = self.rows - 1 - run
         found = (run > 0) & (top >= 0)
         col_index = np.flatnonzero(found)
