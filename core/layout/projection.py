@@ -96,6 +96,7 @@ class GroundProjector:
         self.n_squares = int(square.max()) + 1 if len(square) else 0
         self.landing = np.flatnonzero(valid)
         """The label pixels whose rays land within range (flat indices): the only ones a frame looks up."""
+        self.landing_square = self.square.ravel()[self.landing]
         count = np.bincount(self.square[valid], minlength=self.n_squares)[:, None]
         self.square_centre = (np.stack([np.bincount(self.square[valid], points[valid][:, k], self.n_squares)
                                         for k in (0, 1)], axis=1) / np.maximum(count, 1)).astype(np.float32)
@@ -124,7 +125,7 @@ class GroundProjector:
         ids = labels.astype(np.intp, copy=False)
         kind = c.ray[ids.ravel()[self.landing]]
         use = kind >= 0
-        counts = np.bincount(self.square.ravel()[self.landing][use] * 3 + kind[use], minlength=3 * self.n_squares)
+        counts = np.bincount(self.landing_square[use] * 3 + kind[use], minlength=3 * self.n_squares)
         held = np.flatnonzero(counts)
 
         # The ground run at the bottom of each sampled column (up to its first pixel that is not ground), and the
