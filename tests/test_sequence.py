@@ -143,3 +143,30 @@ def test_warm_up_and_off_map_penalty():
     assert np.isfinite(result.score)
     assert seq.update(None, np.array([2])).frames == 4  # a frame without costs: no crash, penalty only
 
+
+
+@pytest.mark.parametrize("follow", [True, False])
+def test_scores_and_positions_kept_between_changes_are_those_computed_afresh(rng, follow):
+    """What a step keeps of its trajectories (their scores, positions, route positions) equals what a filter
+    restored from its state computes afresh, frame after frame: through direction changes and, following the
+    distance, frames that take the newest one's place."""
+    n, length = 300, 6
+    route = np.cumsum(rng.uniform(0.5, 3.0, n)) if follow else None
+    speeds = tuple(signed((0.8, 1.0, 1.25), stopped=not follow))
+
+    def made() -> SequenceFilter:
+        return SequenceFilter(length, speeds, 1, 3.0, RingCosts(n, length), 0, 0, route, 30.0 if follow else None,
+                              5.0 if follow else 0.0)
+
+    live, q = made(), 0.0
+    for t in range(40):
+        q += float(rng.choice([0.5, 2.0, 6.0]))  # 0.5 m: within the spacing, the frame replaces the newest
+        if t % 7 == 6:
+            live.keep_direction(1)
+        live.update(rng.normal(size=n).astype(np.float32), rng.integers(0, n, 6), None, None, q if follow else None)
+        fresh = made()
+        fresh.restore(live.state())
+        assert np.array_equal(live.positions(), fresh.positions(), equal_nan=True)
+        assert np.array_equal(live.scores(), fresh.scores(), equal_nan=True)
+        assert live.best_by_sign() == fresh.best_by_sign()
+        assert np.array_equal(live.window(5)[0], fresh.window(5)[0], equal_nan=True)
