@@ -1,4 +1,5 @@
-"""Checking, before any work, that an output can be written where it is asked for.
+"""Checking, before any work, that an output can be written where it is asked for; and, once written, making a
+folder's entries durable.
 
 A command that describes thousands of frames and only then finds that its
 ``--out`` is a folder, or that nothing can be written there, has wasted the
@@ -51,3 +52,12 @@ def _check_parent(path: Path, what: str) -> None:
 def _why_not(path: Path) -> str:
     """Why a path that exists cannot be written: its file system is mounted read-only, or permissions."""
     return "a read-only file system" if os.statvfs(path).f_flag & os.ST_RDONLY else "no permission"
+
+
+def sync_folder(folder: Path) -> None:
+    """Make a folder's entries (files created, renamed, removed) survive a crash of the machine."""
+    fd = os.open(folder, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)

@@ -37,6 +37,8 @@ from bisect import bisect_right
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from lostx.core.outputs import sync_folder
+
 from .errors import StreamError
 
 FORMAT = "lostx-journal"
@@ -344,15 +346,6 @@ class Journal:
     def _sync_folder(self) -> None:
         if self.fsync:
             sync_folder(self.folder)
-
-
-def sync_folder(folder: Path) -> None:
-    """Make a folder's entries (files created, renamed, removed) survive a crash of the machine."""
-    fd = os.open(folder, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
 
 
 def _crc(seq: int, payload: bytes) -> int:

@@ -37,8 +37,9 @@ from typing import Any
 import msgpack
 import numpy as np
 
+from lostx.core.outputs import sync_folder
+
 from .errors import StreamError
-from .journal import sync_folder
 
 SUFFIX = ".state"
 _ARRAY = 1

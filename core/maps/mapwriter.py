@@ -29,7 +29,7 @@ from ..describe.keypoints import KeypointEvidence, row_norms
 from ..describe.lost import DescriptorStats, standardise
 from ..describe.reduce import learn_projection, project_rows, reduced_dims, sample_rows
 from ..errors import MapError
-from ..outputs import check_output_folder
+from ..outputs import check_output_folder, sync_folder
 from .format import MAP_FORMAT, MAP_VERSION, WHOLE_VERSION, MapKind, backbone_dict
 from .index import build_index, file_sha256
 
@@ -260,7 +260,7 @@ class MapWriter:
         try:
             manifest = self._write(self._ordered())
             _write_bytes(self._tmp / "manifest.json", json.dumps(manifest, indent=1).encode())
-            _fsync_dir(self._tmp)
+            sync_folder(self._tmp)
             self._swap_in()
         except BaseException:
             shutil.rmtree(self._tmp, ignore_errors=True)
@@ -425,7 +425,7 @@ class MapWriter:
             old = self.out.parent / f".{self.out.name}.old-{os.getpid()}"
             os.replace(self.out, old)
         os.replace(self._tmp, self.out)
-        _fsync_dir(self.out.parent)
+        sync_folder(self.out.parent)
         if old is not None:
             shutil.rmtree(old, ignore_errors=True)
 
@@ -574,10 +574,3 @@ def _finish(out: np.ndarray, path: Path) -> dict[str, Any]:
     return {"file": path.name, "dtype": dtype, "shape": shape, "bytes": path.stat().st_size,
             "sha256": file_sha256(path)}
 
-
-def _fsync_dir(path: Path) -> None:
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
