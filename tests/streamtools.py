@@ -6,16 +6,18 @@ import json
 import socket
 import threading
 import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Callable
 
 import pytest
 
 from lostx.stream.client import Listener
-from lostx.stream.processes import ProcessGroup, lostx_command
 from lostx.stream.messages import ErrorMessage, Result, Stats
+from lostx.stream.processes import ProcessGroup, lostx_command
+from lostx.stream.service import LocalizerService
 
-__all__ = ["ProcessGroup", "lostx_command", "free_port", "endpoints", "Collector", "read_jsonl", "wait_for",
+__all__ = ["ProcessGroup", "lostx_command", "free_port", "endpoints", "Collector", "read_jsonl", "wait_for", "serving",
            "procs", "thumb_map", "nordland_subset", "link_frames", "winter_runs"]
 
 
@@ -37,6 +39,22 @@ def wait_for(condition: Callable[[], bool], timeout: float, what: str, interval:
         if time.monotonic() > deadline:
             raise AssertionError(f"timed out after {timeout:.0f} s waiting for {what}")
         time.sleep(interval)
+
+
+@contextmanager
+def serving(service: LocalizerService, *listeners: Collector) -> Iterator[threading.Thread]:
+    """Run ``service`` in a thread for the block; afterwards stop it, wait for its thread (yielded, to check that it
+    ended) and stop ``listeners``, whatever the block raised."""
+    with service:
+        thread = threading.Thread(target=service.run, daemon=True)
+        thread.start()
+        try:
+            yield thread
+        finally:
+            service.stop("test over")
+            thread.join(30)
+            for listener in listeners:
+                listener.stop()
 
 
 class Collector(threading.Thread):
@@ -124,8 +142,8 @@ def procs(tmp_path):
 def thumb_map(tmp_path_factory, nordland):
     """SeqSLAM thumbnail map of the 3576 Nordland summer frames (no network: about a second)."""
     from lostx.core.build import build_map
-    from lostx.core.maps.refmap import ReferenceMap
     from lostx.core.describe.thumbnail import ThumbnailDescriber
+    from lostx.core.maps.refmap import ReferenceMap
     from lostx.replay.folder import folder_traverse
 
     out = tmp_path_factory.mktemp("maps") / "summer"

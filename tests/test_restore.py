@@ -34,7 +34,7 @@ from lostx.stream.states import SavedState, StateFileError, StateStore, pack, un
 from lostx.stream.streams import localizer_factory
 
 from streamtools import (  # noqa: F401  (fixtures)
-    Collector, endpoints, free_port, link_frames, lostx_command, procs, read_jsonl, thumb_map, wait_for,
+    Collector, endpoints, free_port, link_frames, lostx_command, procs, read_jsonl, serving, thumb_map, wait_for,
 )
 
 FRAMES = 100
@@ -214,28 +214,21 @@ def test_a_full_disk_refuses_frames_keeps_serving_and_loses_nothing_once_freed(t
             full.clear()
             seen["another"] = another.flush(30)  # sent again, and answered
 
-    with service:
-        thread = threading.Thread(target=service.run, daemon=True)
-        thread.start()
-        try:
-            with FramePublisher(frames_at, stream="cam") as publisher:
-                publisher.wait_ready(30)
-                for frame in source[:20]:
-                    publisher.send(frame, timeout=30)
-                assert publisher.flush(30)
-                full.set()
-                freer = threading.Thread(target=while_full, args=(publisher,), daemon=True)
-                freer.start()
-                for frame in source[20:]:
-                    publisher.send(frame, timeout=60)
-                assert publisher.flush(60)
-                freer.join(60)
-            wait_for(lambda: len(listener.results) == 61, 20, "61 results")
-            assert thread.is_alive()  # up throughout
-        finally:
-            service.stop("test over")
-            thread.join(30)
-            listener.stop()
+    with serving(service, listener) as thread:
+        with FramePublisher(frames_at, stream="cam") as publisher:
+            publisher.wait_ready(30)
+            for frame in source[:20]:
+                publisher.send(frame, timeout=30)
+            assert publisher.flush(30)
+            full.set()
+            freer = threading.Thread(target=while_full, args=(publisher,), daemon=True)
+            freer.start()
+            for frame in source[20:]:
+                publisher.send(frame, timeout=60)
+            assert publisher.flush(60)
+            freer.join(60)
+        wait_for(lambda: len(listener.results) == 61, 20, "61 results")
+        assert thread.is_alive()  # up throughout
     assert seen["refused"] == [("journal_unwritable", 0)] and seen["another"]
     # While the disk was full: the history still served, stats still went out, nothing acknowledged unwritten.
     history = seen["history"]

@@ -41,8 +41,8 @@ from lostx.stream.sockets import ClientKeys
 from lostx.stream.streams import AnsweredIds, StreamTable, check_time, localizer_factory
 
 from streamtools import (  # noqa: F401  (fixtures)
-    Collector, endpoints, free_port, link_frames, lostx_command, nordland_subset, procs, read_jsonl, thumb_map,
-    wait_for, winter_runs,
+    Collector, endpoints, free_port, link_frames, lostx_command, nordland_subset, procs, read_jsonl, serving,
+    thumb_map, wait_for, winter_runs,
 )
 
 WINTER_FRAMES = 3576
@@ -536,22 +536,15 @@ def test_a_bad_timestamp_refuses_that_frame_only_and_the_stream_goes_on(thumb_ma
     logs: list[str] = []
     service = LocalizerService(localizer_factory(thumb_map, Config()), config, log=logs.append)
     listener = Collector(results_at)
-    with service:
-        thread = threading.Thread(target=service.run, daemon=True)
-        thread.start()
-        try:
-            with FramePublisher(frames_at, stream="cam") as publisher:
-                publisher.wait_ready(30)
-                for frame in frames:
-                    publisher.send(frame, timeout=30)
-                assert publisher.flush(30)
-                refused = [(e.frame_id, e.code) for e in publisher.errors]
-            wait_for(lambda: len(listener.results) + len(listener.errors) == 40, 10, "40 answers")
-            history = _fetch_history(service.history_endpoint)
-        finally:
-            service.stop("test over")
-            thread.join(30)
-            listener.stop()
+    with serving(service, listener):
+        with FramePublisher(frames_at, stream="cam") as publisher:
+            publisher.wait_ready(30)
+            for frame in frames:
+                publisher.send(frame, timeout=30)
+            assert publisher.flush(30)
+            refused = [(e.frame_id, e.code) for e in publisher.errors]
+        wait_for(lambda: len(listener.results) + len(listener.errors) == 40, 10, "40 answers")
+        history = _fetch_history(service.history_endpoint)
     assert refused == [(20, "bad_timestamp"), (25, "bad_timestamp")]
     errors = {e.frame_id: e for e in listener.errors}
     assert "timestamp 1e+18 is 1e+18 s after the stream's previous frame" in errors[20].text
@@ -654,9 +647,7 @@ def test_streams_are_bounded_and_idle_ones_expire(thumb_map, nordland, tmp_path)
     service = LocalizerService(new_localizer, config, log=lambda text: None)
     listener = Collector(results)
     answers: dict[str, list] = {}
-    with service:
-        thread = threading.Thread(target=service.run, daemon=True)
-        thread.start()
+    with serving(service, listener):
         publishers = {name: FramePublisher(frames, stream=name) for name in "abc"}
         try:
             for publisher in publishers.values():
@@ -681,9 +672,6 @@ def test_streams_are_bounded_and_idle_ones_expire(thumb_map, nordland, tmp_path)
         finally:
             for publisher in publishers.values():
                 publisher.close()
-            service.stop("test over")
-            thread.join(30)
-            listener.stop()
     for result in listener.results:
         answers.setdefault(result.tag.stream, []).append((result.frame_id, result.tag.stream_seq, result.window))
     # a's second frame came after its state expired: a new traverse, numbered from 1 again.
@@ -700,9 +688,7 @@ def test_a_flood_of_stream_ids_from_one_producer_leaves_room_for_a_new_robot(thu
     logged: list[str] = []
     service = LocalizerService(localizer_factory(thumb_map, Config()), config, log=logged.append)
     listener = Collector(results)
-    with service:
-        thread = threading.Thread(target=service.run, daemon=True)
-        thread.start()
+    with serving(service, listener):
         flood, robot = FramePublisher(frames, stream="flood-0"), FramePublisher(frames, stream="robot")
         try:
             flood.wait_ready(30)
@@ -724,9 +710,6 @@ def test_a_flood_of_stream_ids_from_one_producer_leaves_room_for_a_new_robot(thu
         finally:
             flood.close()
             robot.close()
-            service.stop("test over")
-            thread.join(30)
-            listener.stop()
     assert list(robot.errors) == []
     robot_answers = [(r.frame_id, r.tag.stream_seq) for r in listener.results if r.tag.stream == "robot"]
     assert robot_answers == [(20, 1), (21, 2)]
@@ -767,26 +750,19 @@ def test_a_live_listener_that_falls_behind_counts_what_it_missed(thumb_map, nord
     config = StreamConfig(frames=frames, results=results, result_hwm=2, stats_interval=0.1, wait_listeners=1)
     service = LocalizerService(localizer_factory(thumb_map, Config()), config, log=lambda text: None)
     slow = Collector(results, delay=lambda n: 0.1, hwm=1, rcvbuf=4096)
-    with service:
-        thread = threading.Thread(target=service.run, daemon=True)
-        thread.start()
-        try:
-            with FramePublisher(frames) as publisher:
-                replay(list(folder_traverse(nordland / "winter"))[:800], publisher, Pace("rate", 400.0),
-                       progress=False, wait=30)
-            # Every frame taken is answered or dropped, and the slow listener has heard the last answer's
-            # number: from an answer, or from the stats once its queue drained.
-            def caught_up() -> bool:
-                stats = slow.stats[-1] if slow.stats else None
-                return (stats is not None and stats.received == stats.answered + stats.dropped
-                        and slow.listener.last_seq == stats.seq)
+    with serving(service, slow):
+        with FramePublisher(frames) as publisher:
+            replay(list(folder_traverse(nordland / "winter"))[:800], publisher, Pace("rate", 400.0),
+                   progress=False, wait=30)
+        # Every frame taken is answered or dropped, and the slow listener has heard the last answer's
+        # number: from an answer, or from the stats once its queue drained.
+        def caught_up() -> bool:
+            stats = slow.stats[-1] if slow.stats else None
+            return (stats is not None and stats.received == stats.answered + stats.dropped
+                    and slow.listener.last_seq == stats.seq)
 
-            wait_for(caught_up, 60, "the slow listener to hear of the last answer")
-            last = slow.stats[-1].seq
-        finally:
-            service.stop("test over")
-            thread.join(30)
-            slow.stop()
+        wait_for(caught_up, 60, "the slow listener to hear of the last answer")
+        last = slow.stats[-1].seq
     got = len(slow.results) + len(slow.errors)
     assert slow.listener.missed > 100 and slow.listener.missed + got == last
     assert slow.listener.recovered == 0  # no journal: nothing to recover from
@@ -870,16 +846,10 @@ def test_listen_timeout_counts_answers_not_the_stats_heartbeats(thumb_map, procs
     frames, results = endpoints("ipc", tmp_path)
     config = StreamConfig(frames=frames, results=results, stats_interval=0.1)
     service = LocalizerService(localizer_factory(thumb_map, Config()), config, log=lambda text: None)
-    with service:
-        thread = threading.Thread(target=service.run, daemon=True)
-        thread.start()
-        try:
-            # Stats arrive ten times a second and no frame comes: the listener ends after 2 s without an answer.
-            listen = procs.start("listen", lostx_command("listen", results, "--timeout", "2"))
-            code = listen.wait(60)
-        finally:
-            service.stop("test over")
-            thread.join(30)
+    with serving(service):
+        # Stats arrive ten times a second and no frame comes: the listener ends after 2 s without an answer.
+        listen = procs.start("listen", lostx_command("listen", results, "--timeout", "2"))
+        code = listen.wait(60)
     log = procs.log("listen")
     assert code == 0, log
     assert "0 results; service: received 0, answered 0" in log and "lostx: error" not in log
@@ -950,20 +920,13 @@ def test_sinks_get_every_frame_and_estimate_and_a_failing_sink_is_not_fatal(thum
     logs: list[str] = []
     service = LocalizerService(lambda: Localizer(thumb_map), config, sinks=[broken, Keep()], log=logs.append)
     listener = Collector(results)
-    with service:
-        thread = threading.Thread(target=service.run, daemon=True)
-        thread.start()
-        try:
-            with FramePublisher(frames) as publisher:
-                publisher.wait_ready(30)
-                for frame in list(folder_traverse(nordland / "winter"))[:20]:
-                    publisher.send(frame, timeout=30)
-                assert publisher.flush(30)
-            wait_for(lambda: len(listener.results) == 20, 10, "20 results")
-        finally:
-            service.stop("test over")
-            thread.join(30)
-            listener.stop()
+    with serving(service, listener) as thread:
+        with FramePublisher(frames) as publisher:
+            publisher.wait_ready(30)
+            for frame in list(folder_traverse(nordland / "winter"))[:20]:
+                publisher.send(frame, timeout=30)
+            assert publisher.flush(30)
+        wait_for(lambda: len(listener.results) == 20, 10, "20 results")
     assert not thread.is_alive()
     assert [s[0] for s in seen] == list(range(20))
     assert all(shape == (32, 64, 3) and has_evidence for _, shape, _, has_evidence in seen)
