@@ -55,6 +55,8 @@ PITCH_CHECK_STEPS = 15
 """Steps along the camera's axis whose direction of travel is measured before the pitch is checked."""
 PITCH_CHECK_DEG = 1.5
 """A pitch this far from the geometry's is said (the direction's own error on real frames is about half this)."""
+PITCH_SAMPLES = 100
+"""Directions of travel kept for :meth:`VisualOdometry.seen_pitch` (the first ones; a stream may run for days)."""
 _ALONG_AXIS = 0.95  # a step's direction counts for the pitch where its component along the camera's axis is this
 
 # Tracking and the essential matrix (pixels at the working size).
@@ -150,18 +152,19 @@ class VisualOdometry:
         return float(np.median(self._elevations)), len(self._elevations)
 
     def _check_pitch(self, elevation: float) -> None:
-        """Gather the elevation of a direction of travel; at the ``PITCH_CHECK_STEPS``-th, say once whether their
-        median disagrees with the geometry's pitch."""
-        self._elevations.append(elevation)
+        """Gather the elevation of a direction of travel (up to ``PITCH_SAMPLES``); at the ``PITCH_CHECK_STEPS``-th,
+        say once whether their median disagrees with the geometry's pitch."""
+        if len(self._elevations) < PITCH_SAMPLES:
+            self._elevations.append(elevation)
         if len(self._elevations) != PITCH_CHECK_STEPS:
             return
         seen, declared = float(np.median(self._elevations)), self.geometry.pitch
         if abs(seen - declared) > PITCH_CHECK_DEG:
             where = f"{self.geometry.source}: " if self.geometry.source else ""
             warnings.warn(f"{where}the direction of travel in the frames puts the camera's pitch at {seen:.1f} "
-                          f"degrees (down), its geometry says {declared:.1f}: ground distances and the layout "
-                          f"depend on it to within half a degree; check the camera file with 'lostx camera check'",
-                          CameraPitchWarning, stacklevel=3)
+                          f"degrees (positive looking down), its geometry says {declared:.1f}: ground distances and "
+                          f"the layout depend on it to within half a degree; check the camera file with "
+                          f"'lostx camera check'", CameraPitchWarning, stacklevel=3)
 
     def _measure(self, previous: _Frame, current: _Frame) -> _Measurement | None:
         """The current frame's pose in the previous one's, from the frames alone."""
