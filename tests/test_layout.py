@@ -13,7 +13,7 @@ from lostx.core.layout.classes import CHANNELS, OBJECT, ROAD, LayoutClasses
 from lostx.core.layout.compare import GridStack, similarities, similarity
 from lostx.core.layout.describer import FramePlacer, LiveLayout, Placed, map_grid, spread
 from lostx.core.layout.grid import LayoutGrid, accumulate, cell_weights, grid_shape, pack, unpack, unpack_levels
-from lostx.core.layout.projection import FramePoints
+from lostx.core.layout.projection import FramePoints, GroundProjector
 from lostx.core.match.costs import EveryFrameCosts
 from lostx.core.match.matcher import PlaceMatcher
 from lostx.core.match.scores import MapScores
@@ -234,6 +234,23 @@ def test_the_same_stretch_from_its_two_ends_agrees_better_turned(scene, mosaic):
         margins.append(a - b)
     assert turned >= len(pairs) - 1, margins
     assert np.mean(margins) > 0.1
+
+
+def test_a_rear_camera_whose_file_leaves_its_boot_lid_in_still_finds_what_stands_by_the_road(scene, mosaic):
+    """The rear camera's bottom rows show the car's boot lid. A camera file without ``body`` leaves them in; every
+    column then starts with the lid, and the things standing by the road above it must still be found, as where
+    the rows are cut."""
+    traverse = open_traverse(scene / "rear")
+    classes = LayoutClasses.of_model(mosaic.info.class_names)
+    frames = list(traverse.subset([0, 10, 20, 30]))
+    for frame in frames:
+        labels = mosaic(frame.image).label_map
+        metres = {}
+        for body in (traverse.geometry.body, 0.0):
+            project = GroundProjector(dataclasses.replace(traverse.geometry, body=body), labels.shape, classes, 60.0)
+            metres[body] = float(project(labels).contact_weight.sum())
+        assert traverse.geometry.body > 0.05 and metres[traverse.geometry.body] > 10.0
+        assert metres[0.0] == pytest.approx(metres[traverse.geometry.body], rel=0.1), (frame.id, metres)
 
 
 def test_a_map_of_frames_without_a_camera_has_no_layout_and_matches_as_before(day_map, robotcar, mosaic):

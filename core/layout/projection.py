@@ -8,9 +8,11 @@ table look-ups:
 - **rays**: each label pixel below the horizon and nearer than ``max_range`` lands on the road plane;
   what it shows (road, other ground, or something standing there, whose ray passes on behind it) is
   counted where it lands. Rays landing in the same small square are merged (one ``bincount``).
-- **contacts**: in each sampled column, the first pixel above the ground run at the bottom of the image
-  that is neither ground nor sky is where that thing touches the ground (a building's foot, a tree's
-  trunk, a car's wheels); its point counts the metres of ground front it covers at that range.
+- **contacts**: in each sampled column, the first pixel above the column's lowest run of ground that is
+  neither ground nor sky is where that thing touches the ground (a building's foot, a tree's trunk, a
+  car's wheels); its point counts the metres of ground front it covers at that range. Whatever lies
+  below that run (the vehicle's own body where the camera file does not cut it away, a thing right beside
+  the vehicle) touches no ground the camera sees.
 
 Rows showing the vehicle itself (``geometry.body``) are left out.
 """
@@ -128,13 +130,15 @@ class GroundProjector:
         counts = np.bincount(self.landing_square[use] * 3 + kind[use], minlength=3 * self.n_squares)
         held = np.flatnonzero(counts)
 
-        # The ground run at the bottom of each sampled column (up to its first pixel that is not ground), and the
-        # first thing above it.
+        # The lowest ground run of each sampled column (from its lowest ground pixel up to the first that is not
+        # ground), and the first thing above it.
         cols = self.columns
         ground = c.is_ground[ids[: self.rows, cols]][::-1]
+        seen = ground.any(axis=0)
+        ground |= np.arange(len(ground))[:, None] < np.argmax(ground, axis=0)
         run = np.where(ground.all(axis=0), len(ground), np.argmin(ground, axis=0))
         top = self.rows - 1 - run
-        found = (run > 0) & (top >= 0)
+        found = seen & (run > 0) & (top >= 0)
         col_index = np.flatnonzero(found)
         row = top[found]
         label = ids[row, cols[col_index]]
