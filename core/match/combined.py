@@ -12,6 +12,8 @@ frame stands out from the rest of the map. Lower is better, like every single-fr
 
 from __future__ import annotations
 
+import time
+from concurrent.futures import Executor, Future
 from dataclasses import dataclass
 
 import numpy as np
@@ -37,15 +39,31 @@ class LayoutComparison:
         self.views = (grid, grid.turned())
         self.maps, self.weights, self.shifts, self.min_cells, self.turns = maps, weights, shifts, min_cells, turns
         self._every: np.ndarray | None = None
+        self._future: Future[np.ndarray] | None = None
+        self.seconds = 0.0
+        """The comparison with every map frame took this long (on its thread, where it was started on one)."""
 
     def heading(self, index: int) -> LayoutScores:
         """The scores under heading ``index`` (0: as the grid lies, 1: turned)."""
         return LayoutScores(self, index)
 
+    def start(self, worker: Executor) -> None:
+        """Compare with every map frame on ``worker`` (another thread) while the caller goes on (LoST-X verifies);
+        :meth:`every` then waits for it."""
+        self._future = worker.submit(self._timed_every)
+
+    def _timed_every(self) -> np.ndarray:
+        start = time.perf_counter()
+        every = self._compare(self.maps, (0, 1))
+        self.seconds = time.perf_counter() - start
+        return every
+
     def every(self) -> np.ndarray:
         """(2, N) both headings' similarity with every map frame."""
+        if self._every is None and self._future is not None:
+            self._every = self._future.result()
         if self._every is None:
-            self._every = self._compare(self.maps, (0, 1))
+            self._every = self._timed_every()
         return self._every
 
     def at(self, refs: np.ndarray, heading: int) -> np.ndarray:

@@ -6,6 +6,7 @@ from __future__ import annotations
 import dataclasses
 import time
 import warnings
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -206,6 +207,7 @@ class PlaceMatcher:
         self.backbone: Backbone | None = self.describer.backbone if isinstance(self.describer, LostDescriber) else None
         self.last_evidence: KeypointEvidence | None = None
         """The latest LoST query's keypoint evidence (to verify further candidates against)."""
+        self._worker: ThreadPoolExecutor | None = None
         self.layout_off: str | None = None
         """Why the layout takes no part (None while it does, or before a frame showed it cannot)."""
         self._placer: FramePlacer | None = None
@@ -399,6 +401,7 @@ class PlaceMatcher:
                            timings: dict[str, float], t0: float, removed: slice | None = None,
                            layout: LayoutGrid | None = None) -> FrameMatch:
         cfg = self.config.verify
+        comparison = self._layout_comparison(layout) if cfg.enabled else None
         distance_of = QueryDistances(self.search, vector)
         nearest, near = self.search.nearest(vector, self._nearest_count, removed, distance_of)
         shortlist, distances = nearest[: cfg.top_k], near[: cfg.top_k]
@@ -438,19 +441,39 @@ class PlaceMatcher:
                 heading=heading,  # type: ignore[arg-type]
             )
         vote = heading_vote(result.scores, result.mirror_scores)
-        if layout is not None and self._live is not None:
+        if comparison is not None:
             t2 = time.perf_counter()
-            answers, vote = self._with_layout(answers, layout, distance_of, result, vote, removed)
-            timings["layout compare"] = time.perf_counter() - t2
+            answers, vote = self._with_layout(answers, comparison, distance_of, result, vote, removed)
+            # The comparison's own time (on its thread, beside the search and verification), and what combining the
+            # two cues added to the frame's, waiting for it included.
+            timings["layout compare"] = comparison.seconds
+            timings["combine"] = time.perf_counter() - t2
         return FrameMatch(answers["same"], answers["opposite"], vote)
 
-    def _with_layout(self, answers: dict[str, MatchResult], grid: LayoutGrid, distance_of: QueryDistances,
+    def _pool(self) -> ThreadPoolExecutor:
+        """The thread that compares a frame's layout with the map while LoST-X searches and verifies (numpy
+        leaves the interpreter for both: on two cores or more they overlap)."""
+        if self._worker is None:
+            self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="lostx-layout")
+        return self._worker
+
+    def _layout_comparison(self, grid: LayoutGrid | None) -> LayoutComparison | None:
+        """The frame's layout comparison with the map, started on the layout thread where it compares every map
+        frame (None without a layout)."""
+        if grid is None or self._live is None:
+            return None
+        cfg = self.config.layout
+        comparison = LayoutComparison(grid, self.map.layout_stack(), self._layout_weights, self._layout_shifts,
+                                      cfg.min_cells, cfg.turns)
+        if self.map.n_frames <= EVERY_FRAME_MAX:
+            comparison.start(self._pool())
+        return comparison
+
+    def _with_layout(self, answers: dict[str, MatchResult], comparison: LayoutComparison, distance_of: QueryDistances,
                      verified: Verification, lost_vote: float,
                      removed: slice | None) -> tuple[dict[str, MatchResult], float]:
         """Each heading's answer ranked by LoST-X and the layout combined, and the two cues' heading votes."""
         cfg = self.config
-        comparison = LayoutComparison(grid, self.map.layout_stack(), self._layout_weights, self._layout_shifts,
-                                      cfg.layout.min_cells, cfg.layout.turns)
         out = {}
         for heading, lost in answers.items():
             layout = comparison.heading(HEADINGS.index(heading))
