@@ -4,10 +4,11 @@ Front and rear camera, 40 frames each at 2 Hz (about 3 m apart, 126 m with a rou
 per-step error of the translation (metres) and of the turn (degrees), the distance travelled against the ego
 poses, the drift per 30 m of travel (the position error at the end of every 30 m window, the estimate started at
 the true pose at the window's start), the share of steps whose length was measured (not predicted), and the cost
-per frame at the working width (wall clock and CPU, OpenCV's default threads; JPEG decoding not counted). Then
-how the distance (and the median length of the steps both runs measured) moves when the camera's height is
-off by +5 cm and its pitch by +-1 degree, and (with ``--masks``) the same figures with the default backbone's
-road and mover masks instead of the geometric road.
+per frame at the working width (wall clock and CPU, OpenCV's default threads; JPEG decoding not counted); the
+same for the frames played backwards and for every other frame (steps of about 6 m). Then how the distance (and
+the median length of the steps both runs measured) moves when the camera's height is off by +5 cm and its pitch
+by +-1 degree, and (with ``--masks``) the same figures with the default backbone's road and mover masks instead of
+the geometric road.
 
     python benchmarks/bench_odometry.py [--width 800] [--masks] [--out benchmarks/results/odometry.json]
 """
@@ -36,6 +37,14 @@ from lostx.core.paths import data_dir
 SCENE = data_dir() / "nuscenes-frontrear" / "scene-0523"
 BODY = {"front": 0.0, "rear": 0.12}  # the rear camera sees the boot lid along its bottom edge
 WINDOW_M = 30.0
+
+
+PLAYS = {
+    "played backwards": lambda n: np.arange(n)[::-1],
+    "every other frame (1 Hz)": lambda n: np.arange(0, n, 2),
+    "every other frame, backwards": lambda n: np.arange(0, n, 2)[::-1],
+}
+"""Other ways through the frames (geometric road): the frame order of each, for ``n`` frames."""
 
 
 def geometry(camera: str) -> CameraGeometry:
@@ -145,6 +154,11 @@ def main() -> None:
         if args.masks:
             variants["segmentation masks"] = run(nominal, frames, args.width, segmentation_masks(frames))
         entry = {name: scores(result, truth) for name, result in variants.items()}
+        # The same frames played backwards (the camera then moves the other way along its axis: a rear camera
+        # towards what it sees), and every other frame (steps twice as long: a 1 Hz stream, or twice the speed).
+        for name, order in PLAYS.items():
+            entry[name] = scores(run(nominal, [frames[i] for i in order(len(frames))], args.width),
+                                 truth[order(len(frames))])
         for name, s in entry.items():
             rows.append([camera, name, s["translation_error_m"]["mean"], s["translation_error_m"]["median"],
                          s["translation_error_m"]["max"], s["yaw_error_deg"]["mean"], s["yaw_error_deg"]["max"],
@@ -167,7 +181,7 @@ def main() -> None:
         results["cameras"][camera] = entry
 
     print_table(f"visual odometry, nuScenes {SCENE.name}, {args.width} px wide, against the ego poses",
-                ["camera", "road", "step err mean m", "median m", "max m", "yaw err mean deg", "max deg",
+                ["camera", "frames, road", "step err mean m", "median m", "max m", "yaw err mean deg", "max deg",
                  "distance %", "drift/30 m mean m", "max m", "measured", "wall ms/frame", "cpu ms/frame"], rows)
     print_table("distance travelled when the mounting is off (geometric road)",
                 ["camera", "mounting", "distance %", "change %", "step length change % (median)"], sensitivity_rows)

@@ -4,6 +4,8 @@ The fallback motion source for recordings without odometry. Between two consecut
 
 1. Turn and direction of travel: corners (GFTT) tracked with pyramidal Lucas-Kanade, checked forward and
    backward and started where the last step's motion puts them; the essential matrix (MAGSAC) and its pose.
+   Where that finds no motion a car can make (the first step, a step much longer or a turn much sharper than the
+   last: a low frame rate, a fast car), SIFT keypoints matched by their descriptors, which need no guess.
 2. Length: the road plane maps the pixels of one frame into the other by the homography
    ``H(s) = K (R - s t n^T / h) K^-1`` for a travel of ``s`` metres (``t`` the unit direction, ``n`` the road's
    normal, ``h`` the camera's height). A 1-D search over ``s`` maximises the mean normalised cross-correlation
@@ -22,7 +24,9 @@ The fallback motion source for recordings without odometry. Between two consecut
 
 The search runs from the frame in which the stretch of road both frames see is nearer: the current one while
 the camera moves forward along its axis (a front camera), the previous one while it moves backwards (a rear
-camera). The road is the ``ground`` mask where one is given, else the image of the road plane 4-25 m ahead and
+camera); where the step's direction says the camera moved the other way than the last step (or, at the start,
+its facing) had it, the length is searched again from the other frame (a rear camera played backwards, a car
+reversing). The road is the ``ground`` mask where one is given, else the image of the road plane 4-25 m ahead and
 within 8 m to either side; ``movers`` (and the rows of the vehicle's own body, ``geometry.body``) are never looked
 at. Costs about 50-70 ms per frame at 800 x 450 on one core.
 
@@ -64,6 +68,8 @@ _LK = {"winSize": (15, 15), "maxLevel": 3, "criteria": (cv2.TERM_CRITERIA_EPS | 
 _FEATURES = 800
 _MIN_TRACKS = 30  # fewer tracks, or fewer inliers of the essential matrix: no measurement
 _STILL_PX = 0.25  # a median flow under this: standing still
+_SIFT_FEATURES = 2000  # where tracking from the guess fails: keypoints matched by their descriptors
+_MATCH_RATIO = 0.8  # a match's distance against the second nearest's
 # The length search.
 _PATCH = 2  # patches of (2 * _PATCH + 1)^2 pixels of their level
 _PATCHES = 1200
@@ -170,13 +176,28 @@ class VisualOdometry:
         """The current frame's pose in the previous one's, from the frames alone."""
         guess = self._last if self._last is not None else np.zeros(3)
         backwards = guess[0] < -0.1 or (abs(guess[0]) <= 0.1 and self.geometry.facing == "rear")
-        if backwards:
-            measurement = self._view.measure(previous, current, guess)
-        else:
-            measurement = self._view.measure(current, previous, inverse(guess))
-            if measurement is not None:
-                measurement = replace(measurement, pose=inverse(measurement.pose))
+        measurement = self._measure_from(previous, current, guess, backwards)
+        if measurement is None or not (measurement.still or self._plausible(measurement.pose)):
+            matched = self._measure_from(previous, current, None, backwards)
+            if matched is not None and self._plausible(matched.pose):
+                measurement, guess = matched, None
+        if (measurement is not None and not measurement.still and measurement.quality < _LengthFilter.MIN_QUALITY
+                and (measurement.pose[0] < 0) != backwards):
+            # The camera moved the other way along its axis than the last step (or its facing) said: the length is
+            # searched again from the frame in which the road both frames see is nearer.
+            other = self._measure_from(previous, current, guess, not backwards)
+            if other is not None and other.quality > measurement.quality and self._plausible(other.pose):
+                measurement = other
         return measurement
+
+    def _measure_from(self, previous: _Frame, current: _Frame, guess: np.ndarray | None,
+                      backwards: bool) -> _Measurement | None:
+        """The measurement searched from the frame in which the stretch of road both frames see is nearer."""
+        assert self._view is not None
+        if backwards:
+            return self._view.measure(previous, current, guess)
+        measurement = self._view.measure(current, previous, None if guess is None else inverse(guess))
+        return None if measurement is None else replace(measurement, pose=inverse(measurement.pose))
 
     def _filtered(self, m: _Measurement | None) -> Step:
         """The step from the measurement and the filter's prediction.
@@ -293,27 +314,58 @@ class _View:
 
     # The measurement.
 
-    def measure(self, source: _Frame, target: _Frame, guess: np.ndarray) -> _Measurement | None:
-        """The target frame's ground pose in the source frame's; None where the frames do not say."""
-        tracks = self._tracks(source, target, guess)
-        if tracks is None:
+    def measure(self, source: _Frame, target: _Frame, guess: np.ndarray | None) -> _Measurement | None:
+        """The target frame's ground pose in the source frame's; None where the frames do not say. The points are
+        tracked from where the ``guess`` puts them; without one (the step is longer, or the turn sharper, than the
+        guess allows), corners are matched by their descriptors anywhere in the frames."""
+        if guess is not None:
+            tracks = self._tracks(source, target, guess)
+            if tracks is not None and np.median(np.linalg.norm(tracks[1] - tracks[0], axis=1)) < _STILL_PX:
+                return _Measurement(np.zeros(3), 1.0, still=True)
+        else:
+            tracks = self._matches(source, target)
+        motion = None if tracks is None else self._essential(*tracks)
+        if motion is None:
             return None
-        p0, p1 = tracks
-        if np.median(np.linalg.norm(p1 - p0, axis=1)) < _STILL_PX:
-            return _Measurement(np.zeros(3), 1.0, still=True)
-        E, inliers = cv2.findEssentialMat(p0, p1, self.K, cv2.USAC_MAGSAC, 0.999, 0.75)
-        if E is None or E.shape[0] < 3:
-            return None
-        n_inliers, R, t, _ = cv2.recoverPose(E[:3], p0, p1, self.K, mask=inliers)
-        if n_inliers < _MIN_TRACKS:
-            return None
-        t = t.ravel()
+        R, t, n_inliers = motion
         elevation = _elevation(R, t)
         length, sharpness = self._length(source, target, R, t)
         if length is None:
             return _Measurement(self.ground_pose(R, t), 0.0, elevation=elevation)  # the direction alone: unit length
         quality = sharpness * min(1.0, n_inliers / 60.0)
         return _Measurement(self.ground_pose(R, length * t), float(quality), elevation=elevation)
+
+    def _essential(self, p0: np.ndarray, p1: np.ndarray) -> tuple[np.ndarray, np.ndarray, int] | None:
+        """The rotation and unit translation of the camera between corresponding points, and the inliers' count."""
+        E, inliers = cv2.findEssentialMat(p0, p1, self.K, cv2.USAC_MAGSAC, 0.999, 0.75)
+        if E is None or E.shape[0] < 3:
+            return None
+        n_inliers, R, t, _ = cv2.recoverPose(E[:3], p0, p1, self.K, mask=inliers)
+        if n_inliers < _MIN_TRACKS:
+            return None
+        return R, t.ravel(), int(n_inliers)
+
+    def _matches(self, source: _Frame, target: _Frame) -> tuple[np.ndarray, np.ndarray] | None:
+        """Corresponding points of the two frames from SIFT keypoints matched both ways by their descriptors (the
+        nearest clearly nearer than the second): slower than tracking, but they need no guess and survive the
+        change of scale of a long step."""
+        sift = cv2.SIFT_create(_SIFT_FEATURES)
+        k0, d0 = sift.detectAndCompute(source.gray, source.usable)
+        k1, d1 = sift.detectAndCompute(target.gray, target.usable)
+        if d0 is None or d1 is None or len(k0) < _MIN_TRACKS or len(k1) < _MIN_TRACKS:
+            return None
+        matcher = cv2.BFMatcher(cv2.NORM_L2)
+        forward = matcher.knnMatch(d0, d1, k=2)
+        backward = {m.queryIdx: m.trainIdx for m in matcher.match(d1, d0)}
+        pairs = [(m.queryIdx, m.trainIdx) for m, *rest in (f for f in forward if f)
+                 if (not rest or m.distance < _MATCH_RATIO * rest[0].distance)
+                 and backward.get(m.trainIdx) == m.queryIdx]
+        if len(pairs) < _MIN_TRACKS:
+            return None
+        i0, i1 = np.array(pairs).T
+        p0 = np.array([k0[i].pt for i in i0], dtype=np.float32)
+        p1 = np.array([k1[i].pt for i in i1], dtype=np.float32)
+        return p0, p1
 
     def _tracks(self, source: _Frame, target: _Frame, guess: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
         p0 = cv2.goodFeaturesToTrack(source.gray, _FEATURES, 0.01, 8, mask=source.usable, blockSize=7)
