@@ -7,6 +7,10 @@ are the ones measured with the defaults and quoted in the README.
 from __future__ import annotations
 
 import dataclasses
+import json
+import os
+import select
+import signal
 
 import numpy as np
 import pytest
@@ -104,3 +108,44 @@ def test_the_sequence_follows_the_road_through_the_roundabout(scene, maps, mosai
         assert matchable[roundabout].all()
         right[follow] = int(correct[roundabout].sum())
     assert right == {"distance": 16, "frames": 10}  # measured: all but one frame of the roundabout, against 10 of 17
+
+
+def test_a_process_that_forks_after_matching_gets_the_same_answers_in_the_child(scene, maps, mosaic):
+    """The layout's comparison with the map runs beside verification on a thread of its own. A process that forks
+    after matching (a worker pool, a daemon) must get the same answers in the child, not a comparison that never
+    runs because the thread it was handed to stayed in the parent."""
+    from lostx.core.match.matcher import PlaceMatcher
+
+    frames = list(open_traverse(scene / "front").subset(range(8)))
+    config = Config()
+    matcher = PlaceMatcher(maps["rear"], config, mosaic)
+    described = [matcher.describe(f) for f in frames]  # the network runs in the parent only
+    localizer = Localizer(maps["rear"], config, mosaic)
+    for frame, description in zip(frames[:4], described[:4]):
+        localizer.update(frame, matcher.match_description(description))
+
+    def rest() -> list[int]:
+        pairs = zip(frames[4:], described[4:])
+        return [localizer.update(f, matcher.match_description(d)).match_index for f, d in pairs]
+
+    read, write = os.pipe()
+    child = os.fork()
+    if child == 0:  # pragma: no cover (the child reports through the pipe)
+        signal.alarm(120)
+        os.write(write, json.dumps(rest()).encode())
+        os._exit(0)
+    os.close(write)
+    ready, _, _ = select.select([read], [], [], 150)
+    if not ready:
+        os.kill(child, signal.SIGKILL)
+        os.waitpid(child, 0)
+        pytest.fail("the forked child gave no answers in 150 s")
+    reply = os.read(read, 1 << 16).decode()
+    os.close(read)
+    if not reply:
+        os.waitpid(child, 0)
+        pytest.fail("the forked child died without answering (its comparison never ran)")
+    answers = json.loads(reply)
+    _, status = os.waitpid(child, 0)
+    assert os.WIFEXITED(status) and os.WEXITSTATUS(status) == 0
+    assert answers == rest()

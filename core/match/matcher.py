@@ -4,6 +4,7 @@ the frames have it (the two cues combined, :mod:`lostx.core.match.combined`)."""
 from __future__ import annotations
 
 import dataclasses
+import os
 import time
 import warnings
 from concurrent.futures import ThreadPoolExecutor
@@ -208,6 +209,7 @@ class PlaceMatcher:
         self.last_evidence: KeypointEvidence | None = None
         """The latest LoST query's keypoint evidence (to verify further candidates against)."""
         self._worker: ThreadPoolExecutor | None = None
+        self._worker_pid = 0
         self.layout_off: str | None = None
         """Why the layout takes no part (None while it does, or before a frame showed it cannot)."""
         self._placer: FramePlacer | None = None
@@ -452,9 +454,12 @@ class PlaceMatcher:
 
     def _pool(self) -> ThreadPoolExecutor:
         """The thread that compares a frame's layout with the map while LoST-X searches and verifies (numpy
-        leaves the interpreter for both: on two cores or more they overlap)."""
-        if self._worker is None:
+        leaves the interpreter for both: on two cores or more they overlap). One for the matcher's life (a thread
+        started per frame costs 0.5 ms of the frame), and a new one in a forked child, which the parent's
+        thread did not follow."""
+        if self._worker is None or self._worker_pid != os.getpid():
             self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="lostx-layout")
+            self._worker_pid = os.getpid()
         return self._worker
 
     def _layout_comparison(self, grid: LayoutGrid | None) -> LayoutComparison | None:
