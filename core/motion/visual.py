@@ -28,7 +28,8 @@ camera); where the step's direction says the camera moved the other way than the
 its facing) had it, the length is searched again from the other frame (a rear camera played backwards, a car
 reversing). The road is the ``ground`` mask where one is given, else the image of the road plane 4-25 m ahead and
 within 8 m to either side; ``movers`` (and the rows of the vehicle's own body, ``geometry.body``) are never looked
-at. Costs about 50-70 ms per frame at 800 x 450 on one core.
+at. Costs about 50-70 ms per frame at 800 x 450 on one core, and about 80 ms more for a frame whose keypoints
+are matched.
 
 Motions are given in the camera's ground frame: on the road under the camera, x along its level optical axis,
 y to its left (:func:`.pose.camera_on_vehicle`). The rear camera of a car driving forward moves backwards in it.
@@ -317,7 +318,7 @@ class _View:
     def measure(self, source: _Frame, target: _Frame, guess: np.ndarray | None) -> _Measurement | None:
         """The target frame's ground pose in the source frame's; None where the frames do not say. The points are
         tracked from where the ``guess`` puts them; without one (the step is longer, or the turn sharper, than the
-        guess allows), corners are matched by their descriptors anywhere in the frames."""
+        guess allows), keypoints are matched by their descriptors anywhere in the frames."""
         if guess is not None:
             tracks = self._tracks(source, target, guess)
             if tracks is not None and np.median(np.linalg.norm(tracks[1] - tracks[0], axis=1)) < _STILL_PX:
