@@ -82,6 +82,24 @@ def test_the_rear_camera_check_shows_the_body_rows(tmp_path):
     assert drawn[880, 800, 2] > original[880, 800, 2]  # the lid's rows shaded red
 
 
+def test_the_rows_that_stay_the_same_are_found_and_set_against_the_body(front, tmp_path):
+    """The rear camera's boot lid stays the same from frame to frame while the road and the scene move past: the
+    check finds it where the calibration puts it (0.09 of the height), says so where a camera file leaves it out,
+    and finds nothing in the front camera's frames."""
+    proc = lostx("camera", "check", REAR)
+    assert proc.returncode == 0, proc.stderr
+    seen = re.search(r"^still +the bottom ([\d.]+) % of the frames stays the same over 39 pairs of frames: agrees "
+                     r"with body 0\.090$", proc.stdout, re.MULTILINE)
+    assert seen and 7.0 <= float(seen.group(1)) <= 11.0, proc.stdout
+    write_camera_file(dataclasses.replace(open_traverse(REAR).geometry, body=0.0), tmp_path / "camera.toml")
+    proc = lostx("camera", "check", REAR, "--camera-file", tmp_path / "camera.toml")
+    assert re.search(r"^still .*: the vehicle itself\? body = 0\.(08|09|10) in the camera file", proc.stdout,
+                     re.MULTILINE), proc.stdout
+    proc = lostx("camera", "check", front)
+    assert re.search(r"^still +no rows at the bottom stay the same over 39 pairs of frames: agrees with body "
+                     r"0\.000$", proc.stdout, re.MULTILINE), proc.stdout
+
+
 def test_a_camera_file_is_checked_at_the_frame_size(robotcar, tmp_path):
     folder = tmp_path / "day"
     folder.mkdir()

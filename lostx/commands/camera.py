@@ -50,19 +50,26 @@ def run_check(args: argparse.Namespace) -> int:
     geometry = _geometry(frame, args.source)
     _print_and_draw(frame, geometry, label, args.out)
     if traverse is not None:
-        _print_seen_pitch(traverse, geometry, args.frame)
+        _print_seen_motion(traverse, geometry, args.frame)
     return 0
 
 
-def _print_seen_pitch(traverse: Traverse, geometry: CameraGeometry, start: int) -> None:
-    """The pitch the frames' direction of travel shows (visual odometry over up to ``MOTION_FRAMES`` frames)."""
+def _print_seen_motion(traverse: Traverse, geometry: CameraGeometry, start: int) -> None:
+    """What up to ``MOTION_FRAMES`` frames from ``start`` show: the rows that stay the same (the vehicle's body),
+    and the pitch their direction of travel puts the camera at (visual odometry)."""
     from lostx.core.motion.visual import VisualOdometry
 
+    from . import camera_check
+
     odometry = VisualOdometry(geometry)
+    images = []
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # said here as a line of its own
         for k in range(start, min(len(traverse), start + MOTION_FRAMES)):
-            odometry.step(traverse.frame(k).image)
+            images.append(traverse.frame(k).image)
+            odometry.step(images[-1])
+    if len(images) > 1:
+        print(camera_check.body_line(camera_check.seen_body(images), len(images) - 1, geometry.body))
     seen = odometry.seen_pitch()
     if seen is None:
         print(f"motion     no step along the camera's axis in frames {start}-{start + MOTION_FRAMES - 1}: "

@@ -69,6 +69,49 @@ def report(geometry: CameraGeometry, calibrated: CameraGeometry) -> list[str]:
     return lines
 
 
+BODY_CORRELATION = 0.3
+"""A row whose detail correlates this well, or better, between consecutive frames stays the same: the vehicle.
+(Rows of road and scene, moving past, correlate near 0; the rear camera's boot lid on nuScenes 0.55 to 0.75.)"""
+BODY_WIDTH = 400
+"""Frames are compared this wide."""
+BODY_AGREES = 0.03
+"""Within this share of the height the body the frames show agrees with the camera file's."""
+
+
+def seen_body(images: list[np.ndarray]) -> float:
+    """The share of the image height, at the bottom, that stays the same from frame to frame: the vehicle's own
+    body (its bonnet, its boot lid). ``images``: consecutive RGB frames of one camera, the car moving.
+
+    Each row's detail (the image less its blur) is correlated with the same row of the next frame; the median over
+    the pairs marks the rows that do not move, counted up from the bottom until the first that does."""
+    details = []
+    for image in images:
+        gray = cv2.cvtColor(np.asarray(image), cv2.COLOR_RGB2GRAY)
+        height = max(1, round(gray.shape[0] * BODY_WIDTH / gray.shape[1]))
+        gray = cv2.resize(gray, (BODY_WIDTH, height), interpolation=cv2.INTER_AREA).astype(np.float32)
+        details.append(gray - cv2.GaussianBlur(gray, (0, 0), 3))
+    if len(details) < 2:
+        return 0.0
+    correlations = []
+    for a, b in zip(details, details[1:]):
+        norm = np.sqrt((a * a).sum(axis=1) * (b * b).sum(axis=1))
+        correlations.append(np.where(norm > 0, (a * b).sum(axis=1) / np.maximum(norm, 1e-9), 0.0))
+    still = (np.median(correlations, axis=0) >= BODY_CORRELATION)[::-1]
+    return float(len(still) if still.all() else int(np.argmin(still))) / len(still)
+
+
+def body_line(seen: float, pairs: int, declared: float) -> str:
+    """The printed verdict on the camera file's ``body`` against what ``pairs`` pairs of frames showed."""
+    shown = (f"the bottom {100 * seen:.1f} % of the frames stays the same over {pairs} pairs of frames"
+             if seen > 0 else f"no rows at the bottom stay the same over {pairs} pairs of frames")
+    if abs(seen - declared) <= BODY_AGREES:
+        return f"still      {shown}: agrees with body {declared:.3f}"
+    if declared == 0:
+        return (f"still      {shown}: the vehicle itself? body = {seen:.2f} in the camera file leaves those rows out "
+                f"(of the network's view and visual odometry's)")
+    return f"still      {shown}: DISAGREES with body {declared:.3f} in the camera file"
+
+
 def aspect_warning(image_size: tuple[int, int], calibrated: CameraGeometry) -> str | None:
     """A warning where the frame's shape is not the calibration's (scaling cannot make them agree)."""
     width, height = image_size
