@@ -41,7 +41,7 @@ class LayoutComparison:
         self._every: np.ndarray | None = None
         self._future: Future[np.ndarray] | None = None
         self.seconds = 0.0
-        """The comparison with every map frame took this long (on its thread, where it was started on one)."""
+        """The comparisons took this long (on their thread, where :meth:`start` put them on one)."""
 
     def heading(self, index: int) -> LayoutScores:
         """The scores under heading ``index`` (0: as the grid lies, 1: turned)."""
@@ -50,20 +50,14 @@ class LayoutComparison:
     def start(self, worker: Executor) -> None:
         """Compare with every map frame on ``worker`` (another thread) while the caller goes on (LoST-X verifies);
         :meth:`every` then waits for it."""
-        self._future = worker.submit(self._timed_every)
-
-    def _timed_every(self) -> np.ndarray:
-        start = time.perf_counter()
-        every = self._compare(self.maps, (0, 1))
-        self.seconds = time.perf_counter() - start
-        return every
+        self._future = worker.submit(self._compare, self.maps, (0, 1))
 
     def every(self) -> np.ndarray:
         """(2, N) both headings' similarity with every map frame."""
         if self._every is None and self._future is not None:
             self._every = self._future.result()
         if self._every is None:
-            self._every = self._timed_every()
+            self._every = self._compare(self.maps, (0, 1))
         return self._every
 
     def at(self, refs: np.ndarray, heading: int) -> np.ndarray:
@@ -77,6 +71,7 @@ class LayoutComparison:
         """(len(headings), N), best over the turns and sideways shifts: every map grid as it lies, then each
         heading's ``REFINE`` most similar shifted (a shift only ever finds a better fit, and only the best
         ones matter)."""
+        start = time.perf_counter()
         views, turns = [self.views[h] for h in headings], len(self.turns)
 
         def compare(stack: GridStack, shifts: int) -> np.ndarray:
@@ -93,6 +88,7 @@ class LayoutComparison:
             refined = compare(maps.rows(union), self.shifts)
             for h in range(len(views)):
                 scores[h, best[h]] = np.maximum(scores[h, best[h]], refined[h, where[h]])
+        self.seconds += time.perf_counter() - start
         return scores
 
 

@@ -62,14 +62,15 @@ def _print_seen_motion(traverse: Traverse, geometry: CameraGeometry, start: int)
     from . import camera_check
 
     odometry = VisualOdometry(geometry)
-    images = []
+    details = []  # small: the frames themselves are not kept
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # said here as a line of its own
         for k in range(start, min(len(traverse), start + MOTION_FRAMES)):
-            images.append(traverse.frame(k).image)
-            odometry.step(images[-1])
-    if len(images) > 1:
-        print(camera_check.body_line(camera_check.seen_body(images), len(images) - 1, geometry.body))
+            image = traverse.frame(k).image
+            details.append(camera_check.body_detail(image))
+            odometry.step(image)
+    if len(details) > 1:
+        print(camera_check.body_line(camera_check.seen_body(details), len(details) - 1, geometry.body))
     seen = odometry.seen_pitch()
     if seen is None:
         print(f"motion     no step along the camera's axis in frames {start}-{start + MOTION_FRAMES - 1}: "

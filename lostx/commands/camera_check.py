@@ -78,18 +78,21 @@ BODY_AGREES = 0.03
 """Within this share of the height the body the frames show agrees with the camera file's."""
 
 
-def seen_body(images: list[np.ndarray]) -> float:
-    """The share of the image height, at the bottom, that stays the same from frame to frame: the vehicle's own
-    body (its bonnet, its boot lid). ``images``: consecutive RGB frames of one camera, the car moving.
+def body_detail(image: np.ndarray) -> np.ndarray:
+    """What :func:`seen_body` compares of an RGB frame: its gray image :data:`BODY_WIDTH` wide, less its blur."""
+    gray = cv2.cvtColor(np.asarray(image), cv2.COLOR_RGB2GRAY)
+    height = max(1, round(gray.shape[0] * BODY_WIDTH / gray.shape[1]))
+    gray = cv2.resize(gray, (BODY_WIDTH, height), interpolation=cv2.INTER_AREA).astype(np.float32)
+    return gray - cv2.GaussianBlur(gray, (0, 0), 3)
 
-    Each row's detail (the image less its blur) is correlated with the same row of the next frame; the median over
-    the pairs marks the rows that do not move, counted up from the bottom until the first that does."""
-    details = []
-    for image in images:
-        gray = cv2.cvtColor(np.asarray(image), cv2.COLOR_RGB2GRAY)
-        height = max(1, round(gray.shape[0] * BODY_WIDTH / gray.shape[1]))
-        gray = cv2.resize(gray, (BODY_WIDTH, height), interpolation=cv2.INTER_AREA).astype(np.float32)
-        details.append(gray - cv2.GaussianBlur(gray, (0, 0), 3))
+
+def seen_body(details: list[np.ndarray]) -> float:
+    """The share of the image height, at the bottom, that stays the same from frame to frame: the vehicle's own
+    body (its bonnet, its boot lid). ``details``: :func:`body_detail` of consecutive frames of one camera, the car
+    moving.
+
+    Each row is correlated with the same row of the next frame; the median over the pairs marks the rows that do
+    not move, counted up from the bottom until the first that does."""
     if len(details) < 2:
         return 0.0
     correlations = []
