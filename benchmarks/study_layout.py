@@ -71,7 +71,15 @@ FAMILIES: dict[str, dict[str, Config]] = {
         "no sideways shift": variant(layout=dict(across_shift=0.0)),
         "vehicles weighted 1": variant(layout=dict(vehicle_weight=1.0)),
         "vehicles left out": variant(layout=dict(vehicle_weight=0.0)),
-        "turns of +-10, +-20 degrees": variant(layout=dict(turns=(-20.0, -10.0, 0.0, 10.0, 20.0))),
+    },
+    "turns": {
+        "no turn": variant(layout=dict(turns=(0.0,))),
+        "+-1 degree": variant(layout=dict(turns=(-1.0, 0.0, 1.0))),
+        "+-2 degrees (default)": Config(),
+        "+-3 degrees": variant(layout=dict(turns=(-3.0, 0.0, 3.0))),
+        "+-5 degrees": variant(layout=dict(turns=(-5.0, 0.0, 5.0))),
+        "+-3, +-6 degrees": variant(layout=dict(turns=(-6.0, -3.0, 0.0, 3.0, 6.0))),
+        "+-10, +-20 degrees": variant(layout=dict(turns=(-20.0, -10.0, 0.0, 10.0, 20.0))),
     },
     "motion": {
         "ego poses (default source)": Config(),

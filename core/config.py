@@ -241,9 +241,10 @@ class LayoutConfig:
     """At most this many frames are gathered into one grid (the most recent ones, or those nearest a map frame)."""
     across_shift: float = 2.0
     """The grids are compared shifted sideways up to this many metres (a car in another lane)."""
-    turns: tuple[float, ...] = (0.0,)
-    """The grids are also compared with the query's turned by these angles (degrees) about its centre: views of
-    a curve from its two ends are not exactly 180 degrees apart."""
+    turns: tuple[float, ...] = (-2.0, 0.0, 2.0)
+    """The most similar map grids are compared again with the query's turned by these angles (degrees) about its
+    centre: views of a curve from its two ends are not exactly 180 degrees apart, and the gathered frames' motion
+    and the camera's mounting are known to a degree or two."""
     vehicle_weight: float = 0.5
     """Weight of the vehicles' channel against the others' 1: parked cars come and go between visits."""
     min_cells: int = 25

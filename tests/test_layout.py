@@ -67,6 +67,31 @@ def test_both_headings_in_one_pass_equal_each_compared_alone(rng, monkeypatch):
         assert np.allclose(large.heading(heading).at(refs), alone[heading][refs], atol=1e-6)
 
 
+def _smooth_grid(rng: np.random.Generator, shape=(20, 15)) -> LayoutGrid:
+    import cv2
+
+    values = np.stack([cv2.GaussianBlur(rng.random(shape).astype(np.float32), (0, 0), 1.0) for _ in CHANNELS])
+    return LayoutGrid(values, np.ones(shape, dtype=bool))
+
+
+def test_the_best_grids_are_compared_again_turned_a_few_degrees(rng):
+    """A map grid of the same place seen 2 degrees apart (a curve's two ends) is found as itself by the query turned
+    2 degrees; the refined scores equal every turn and shift compared with every map frame."""
+    from lostx.core.match import combined
+
+    query = _smooth_grid(rng)
+    grids = [_smooth_grid(rng) for _ in range(30)]
+    grids[11] = query.rotated(2.0)
+    stack = GridStack.of(grids)
+    plain = combined.LayoutComparison(query, stack, WEIGHTS, shifts=1, min_cells=5).every()[0]
+    turning = combined.LayoutComparison(query, stack, WEIGHTS, shifts=1, min_cells=5, turns=(-2.0, 0.0, 2.0))
+    scores = turning.every()
+    assert scores[0, 11] == pytest.approx(1.0, abs=1e-5) and plain[11] < 0.99
+    for heading, view in enumerate((query, query.turned())):
+        brute = np.max([similarity(view.rotated(angle), stack, WEIGHTS, 1, 5) for angle in (-2.0, 0.0, 2.0)], axis=0)
+        assert np.allclose(scores[heading], brute, atol=1e-6)
+
+
 def _pearson_mean(query: LayoutGrid, grid: LayoutGrid, weights: np.ndarray, min_cells: int) -> float:
     """The similarity as defined, one pair at a time: the weighted mean over channels of the Pearson correlation
     over the cells both grids observed (0 for a channel constant there)."""

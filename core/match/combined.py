@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..layout.compare import GridStack, similarities
+from ..layout.compare import GridStack, correlations, shifted, similarities
 from ..layout.grid import LayoutGrid
 from .scores import MapScores
 
@@ -31,8 +31,9 @@ REFINE = 64
 
 
 class LayoutComparison:
-    """One frame's layout grid against the map's under both headings (as it lies, and turned 180 degrees),
-    every heading, turn and sideways shift compared in one pass over the map's grids when first asked."""
+    """One frame's layout grid against the map's under both headings (as it lies, and turned 180 degrees): every
+    map grid compared as it lies in one pass when first asked, the most similar ones again turned a few degrees
+    and shifted sideways."""
 
     def __init__(self, grid: LayoutGrid, maps: GridStack, weights: np.ndarray, shifts: int, min_cells: int,
                  turns: tuple[float, ...] = (0.0,)) -> None:
@@ -42,6 +43,14 @@ class LayoutComparison:
         self._future: Future[np.ndarray] | None = None
         self.seconds = 0.0
         """The comparisons took this long (on their thread, where :meth:`start` put them on one)."""
+
+    def _refined(self, view: LayoutGrid, stack: GridStack, turns: list[float]) -> np.ndarray:
+        """(n,) ``view``'s best similarity with each grid of ``stack`` over the sideways shifts and the turns (each
+        turn as it lies and shifted), the view as it lies left out (its similarity already known)."""
+        offsets = range(-self.shifts, self.shifts + 1)
+        variants = [shifted(view, s) for s in offsets if s]
+        variants += [shifted(turned, s) for turned in [view.rotated(angle) for angle in turns] for s in offsets]
+        return correlations(variants, stack, self.weights, self.min_cells).max(axis=0)
 
     def heading(self, index: int) -> LayoutScores:
         """The scores under heading ``index`` (0: as the grid lies, 1: turned)."""
@@ -68,26 +77,18 @@ class LayoutComparison:
         return self._compare(self.maps.rows(refs), (heading,))[0]
 
     def _compare(self, maps: GridStack, headings: tuple[int, ...]) -> np.ndarray:
-        """(len(headings), N), best over the turns and sideways shifts: every map grid as it lies, then each
-        heading's ``REFINE`` most similar shifted (a shift only ever finds a better fit, and only the best
+        """(len(headings), N): every map grid as it lies, then each heading's ``REFINE`` most similar again, best
+        over the small turns and sideways shifts (a turn or a shift only ever finds a better fit, and only the best
         ones matter)."""
         start = time.perf_counter()
-        views, turns = [self.views[h] for h in headings], len(self.turns)
-
-        def compare(stack: GridStack, shifts: int) -> np.ndarray:
-            queries = [view.rotated(angle) for view in views for angle in self.turns]
-            scores = similarities(queries, stack, self.weights, shifts, self.min_cells, aside=shifts > 0)
-            return scores.reshape(len(views), turns, stack.n).max(axis=1)
-
-        scores = compare(maps, 0)
-        if self.shifts and maps.n:
+        views = [self.views[h] for h in headings]
+        scores = similarities(views, maps, self.weights, 0, self.min_cells)
+        turns = [angle for angle in self.turns if angle != 0.0]
+        if (self.shifts or turns) and maps.n:
             ranked = np.where(np.isfinite(scores), scores, -np.inf)
-            best = np.argsort(-ranked, axis=1, kind="stable")[:, :REFINE]  # each heading's own
-            union, where = np.unique(best, return_inverse=True)
-            where = where.reshape(best.shape)
-            refined = compare(maps.rows(union), self.shifts)
-            for h in range(len(views)):
-                scores[h, best[h]] = np.maximum(scores[h, best[h]], refined[h, where[h]])
+            for h, view in enumerate(views):
+                best = np.argsort(-ranked[h], kind="stable")[:REFINE]
+                scores[h, best] = np.maximum(scores[h, best], self._refined(view, maps.rows(best), turns))
         self.seconds += time.perf_counter() - start
         return scores
 
