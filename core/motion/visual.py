@@ -8,8 +8,10 @@ The fallback motion source for recordings without odometry. Between two consecut
    last: a low frame rate, a fast car), SIFT keypoints matched by their descriptors, which need no guess.
 2. Length: the road plane maps the pixels of one frame into the other by the homography
    ``H(s) = K (R - s t n^T / h) K^-1`` for a travel of ``s`` metres (``t`` the unit direction, ``n`` the road's
-   normal, ``h`` the camera's height). A 1-D search over ``s`` maximises the mean normalised cross-correlation
-   of small patches of road texture, coarse to fine (half size, then full size). Only pixels whose image gradient
+   normal, ``h`` the camera's height). A search over ``s`` maximises the mean normalised cross-correlation of
+   small patches of road texture, coarse to fine (half size, then full size); on the full-size level ``n`` is also
+   tilted up to 2 degrees about the camera's x axis, so that a pitch a degree off in the camera file (8 % of every
+   length) or a road sloping away from the car's plane does not scale the step. Only pixels whose image gradient
    lies along their flow take part: lane lines running with the motion look the same at any ``s``.
 3. A Kalman filter on the step length (filterpy) takes each length, weighted by the step's quality, and gates
    outliers. A step a car cannot make (sideways, a turn of over 30 degrees, a reversal at speed) is not taken.
@@ -76,6 +78,7 @@ _PATCH = 2  # patches of (2 * _PATCH + 1)^2 pixels of their level
 _PATCHES = 1200
 _PYRAMID = ((1, 300), (0, 1200))  # the search's levels (0 full size, 1 half), coarse first, and their patches
 _COARSE_STEP = 1.10  # ratio of neighbouring lengths on the coarse level's grid
+_TILTS = tuple(math.radians(a) for a in (-2.0, -1.0, 0.0, 1.0, 2.0))  # the road's tilts tried on the finest level
 # What a car can do between frames.
 _SLIP_DEG = 8.0  # how far off the camera's axis (beyond the turn) a step may head
 _MAX_TURN_DEG = 30.0
@@ -309,6 +312,14 @@ class _View:
         position = -self.R @ R.T @ t
         return np.array([position[0], position[1], math.atan2(turn[1, 0], turn[0, 0])])
 
+    def tilted(self, angle: float) -> np.ndarray:
+        """The road's normal in camera coordinates tilted ``angle`` radians about the camera's x axis (positive: the
+        road rising ahead of the camera, as if it looked further down)."""
+        if angle == 0.0:
+            return self.normal
+        c, s = math.cos(angle), math.sin(angle)
+        return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]]) @ self.normal
+
     def homography(self, R: np.ndarray, t: np.ndarray) -> np.ndarray:
         """Source pixels to target pixels for points on the road plane."""
         return self.K @ (R - np.outer(t, self.normal) / self.h) @ self.K_inv
@@ -398,8 +409,8 @@ class _View:
         return down & (reach < within)
 
     def _length(self, source: _Frame, target: _Frame, R: np.ndarray, t: np.ndarray) -> tuple[float | None, float]:
-        """The length of the unit translation t that best maps the source's road onto the target's, and how
-        sharply the correlation peaks there (0 to 1)."""
+        """The length of the unit translation t that best maps the source's road onto the target's (the road tilted as
+        fits it best), and how sharply the correlation peaks there (0 to 1)."""
         centres = self._road_samples(source, R, t)
         if centres is None:
             return None, 0.0
@@ -440,7 +451,10 @@ class _Level:
         to_level = np.array([[self.zoom, 0.0, 0.5 * self.zoom - 0.5], [0.0, self.zoom, 0.5 * self.zoom - 0.5],
                              [0.0, 0.0, 1.0]])
         self.rotated = (to_level @ view.K @ R @ view.K_inv @ x).astype(np.float32)
-        self.shifted = (to_level @ view.K @ np.outer(t, view.normal) @ view.K_inv @ x / view.h).astype(np.float32)
+        # (t n^T / h) x = t (n . ray) / h: the direction in the level's pixels, and each pixel's ray to meet the road
+        self.direction = (to_level @ view.K @ t).astype(np.float32)[:, None]
+        self.rays = (view.K_inv @ x / view.h).astype(np.float32)
+        self.view = view
         self.detail = target.detail[level]
         height, width = self.detail.shape
         margin = _PATCH + 1
@@ -456,13 +470,14 @@ class _Level:
         mu, mv = u.astype(np.float32).reshape(shape), v.astype(np.float32).reshape(shape)
         return cv2.remap(image, mu, mv, cv2.INTER_LINEAR).reshape(len(u), self.n, self.size)
 
-    def scores(self, lengths: np.ndarray) -> np.ndarray:
-        """The mean patch correlation for each length (patches that leave the view or land on the vehicle's body
-        or a mover count as 0)."""
+    def scores(self, lengths: np.ndarray, tilt: float = 0.0) -> np.ndarray:
+        """The mean patch correlation for each length, the road's normal tilted ``tilt`` radians about the camera's
+        x axis (patches that leave the view or land on the vehicle's body or a mover count as 0)."""
         s = np.asarray(lengths, dtype=np.float32)[:, None]
-        z = np.maximum(self.rotated[2] - s * self.shifted[2], 1e-6)
-        u = (self.rotated[0] - s * self.shifted[0]) / z
-        v = (self.rotated[1] - s * self.shifted[1]) / z
+        shifted = self.direction * (self.view.tilted(tilt).astype(np.float32) @ self.rays)[None, :]
+        z = np.maximum(self.rotated[2] - s * shifted[2], 1e-6)
+        u = (self.rotated[0] - s * shifted[0]) / z
+        v = (self.rotated[1] - s * shifted[1]) / z
         centre = self.size // 2
         cu = u.reshape(len(s), self.n, self.size)[..., centre]
         cv_ = v.reshape(len(s), self.n, self.size)[..., centre]
@@ -480,7 +495,9 @@ def _best_length(levels: list[_Level]) -> tuple[float | None, float]:
     """The length that maximises the mean patch correlation, and how clearly the correlation peaks there (0 to 1).
 
     Searched coarse to fine: the whole range on the coarsest level, then around the best length on each finer
-    one, finished by a parabola."""
+    one, the finest jointly with the road's tilt about the camera's x axis (``_TILTS``: what the geometry's pitch
+    misses, a degree being 8 % of every length, and the road's own slope), finished by a parabola. The peak's
+    sharpness is the clearer of the best tilt's and the geometry's own."""
     lo, hi = LENGTH_RANGE_M
     step = math.log(_COARSE_STEP)
     grid = np.exp(np.arange(math.log(lo), math.log(hi) + step, step))
@@ -488,22 +505,35 @@ def _best_length(levels: list[_Level]) -> tuple[float | None, float]:
     k = int(np.argmax(scores))
     if scores[k] <= 0:
         return None, 0.0
-    length = float(grid[k])
-    for level in levels[1:]:
+    length, tilt = float(grid[k]), 0.0
+    for index, level in enumerate(levels[1:], start=1):
+        tilts = _TILTS if index == len(levels) - 1 else (0.0,)
         around = length * np.exp(np.linspace(-step, step, 5))
-        values = level.scores(around)
-        j = int(np.argmax(values))
+        table = np.stack([level.scores(around * _tilt_scale(a), a) for a in tilts])
+        plain = float(around[int(np.argmax(table[tilts.index(0.0)]))])  # the geometry's own best
+        i, j = np.unravel_index(int(np.argmax(table)), table.shape)
+        tilt = float(tilts[i])
+        values, around = table[i], around * _tilt_scale(tilt)
         length, step = float(around[j]), step / 2
     if 0 < j < len(around) - 1:
         y0, y1, y2 = values[j - 1: j + 2]
         curvature = y0 - 2 * y1 + y2
         if curvature < 0:
             length *= math.exp(0.5 * (y0 - y2) / curvature * step)
-    peak, below, above = levels[-1].scores([length, length / 1.25, length * 1.25])
     away = scores[np.abs(np.log(grid / length)) > 0.35]
     second = float(away.max()) if len(away) else -1.0
-    sharpness = np.clip((peak - max(below, above) - 0.1) / 0.25, 0, 1) * np.clip((scores[k] - second) / 0.15, 0, 1)
-    return length, float(sharpness)
+    distinct = np.clip((scores[k] - second) / 0.15, 0, 1)
+    peaks = []
+    for a, at in {tilt: length, 0.0: plain}.items():
+        peak, below, above = levels[-1].scores([at, at / 1.25, at * 1.25], a)
+        peaks.append(np.clip((peak - max(below, above) - 0.1) / 0.25, 0, 1))
+    return length, float(max(peaks) * distinct)
+
+
+def _tilt_scale(tilt: float) -> float:
+    """Where the road tilted by ``tilt`` puts the length found untilted: about 8 % shorter per degree (the road's
+    patches 4-25 m away, seen from about 1.5 m up)."""
+    return math.exp(-0.08 * math.degrees(tilt))
 
 
 class _LengthFilter:
