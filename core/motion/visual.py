@@ -496,8 +496,9 @@ def _best_length(levels: list[_Level]) -> tuple[float | None, float]:
 
     Searched coarse to fine: the whole range on the coarsest level, then around the best length on each finer
     one, the finest jointly with the road's tilt about the camera's x axis (``_TILTS``: what the geometry's pitch
-    misses, a degree being 8 % of every length, and the road's own slope), finished by a parabola. The peak's
-    sharpness is the clearer of the best tilt's and the geometry's own."""
+    misses, a degree being 8 % of every length, and the road's own slope), finished by a parabola. How sharply
+    the correlation peaks is taken at the length found, tilted as found or as the geometry has it, and at the
+    geometry's own best length: the clearest of the three."""
     lo, hi = LENGTH_RANGE_M
     step = math.log(_COARSE_STEP)
     grid = np.exp(np.arange(math.log(lo), math.log(hi) + step, step))
@@ -524,7 +525,7 @@ def _best_length(levels: list[_Level]) -> tuple[float | None, float]:
     second = float(away.max()) if len(away) else -1.0
     distinct = np.clip((scores[k] - second) / 0.15, 0, 1)
     peaks = []
-    for a, at in {tilt: length, 0.0: plain}.items():
+    for a, at in {(tilt, length), (0.0, length), (0.0, plain)}:
         peak, below, above = levels[-1].scores([at, at / 1.25, at * 1.25], a)
         peaks.append(np.clip((peak - max(below, above) - 0.1) / 0.25, 0, 1))
     return length, float(max(peaks) * distinct)
