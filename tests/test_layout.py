@@ -227,6 +227,23 @@ def test_frames_are_chosen_evenly_over_the_distance():
     assert len(spread(travelled, 10.0, 13.0, 12, keep=13)) == 4
 
 
+@pytest.mark.parametrize("stream", ["a camera at 50 Hz", "a stop of 200 frames"])
+def test_a_live_grid_gathers_its_distance_at_any_frame_rate(stream):
+    """Each frame sees a road point 25 m ahead of it; the grid gathers the last 24 m, so its points spread over some
+    twelve 2 m rows, whether the frames come 0.1 m apart or the car stood still for 200 of them (the newest 48
+    frames kept spanned 4.8 m, and a stop none)."""
+    config = LayoutConfig(blur=0.0)
+    live = LiveLayout(config)
+    if stream == "a stop of 200 frames":
+        at = list(np.arange(0.0, 30.0, 2.0)) + [28.0] * 200
+    else:
+        at = list(np.arange(0.0, 30.0, 0.1))
+    for x in at:
+        grid = live.add(Placed(_point(25.0, 0.0), np.array([x, 0.0, 0.0]), float(x)))
+    rows = np.flatnonzero(grid.mask.any(axis=1))
+    assert rows.max() - rows.min() + 1 >= 11, rows
+
+
 @pytest.fixture(scope="module")
 def scene():
     if not SCENE.is_dir():

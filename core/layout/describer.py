@@ -118,11 +118,14 @@ class FramePlacer:
 
 
 class LiveLayout:
-    """The grids of a live stream: each frame's with those of the distance travelled just before it."""
+    """The grids of a live stream: each frame's with those of the distance travelled just before it (kept a short
+    distance apart, whatever the frame rate)."""
 
     def __init__(self, config: LayoutConfig) -> None:
         self.config = config
         self._recent: deque[Placed] = deque()
+        self._spacing = config.query_travel / (4 * config.max_frames)
+        """Metres between the frames kept (but the newest): four to choose from for each one gathered."""
 
     def reset(self) -> None:
         self._recent.clear()
@@ -143,6 +146,10 @@ class LiveLayout:
         cfg = self.config
         if not frame.known:
             self._recent.clear()  # where it stood against the frames before is unknown: they cannot be gathered
+        if len(self._recent) > 1 and self._recent[-1].travelled - self._recent[-2].travelled < self._spacing:
+            # The newest frame kept lies within the spacing of the one before it: the new frame takes its place, so
+            # that the frames kept span ``query_travel`` at any frame rate, and a stop keeps the road before it.
+            self._recent.pop()
         self._recent.append(frame)
         while self._recent and self._recent[0].travelled < frame.travelled - cfg.query_travel - 1e-9:
             self._recent.popleft()
