@@ -204,13 +204,19 @@ def test_sigterm_while_matching_leaves_a_complete_recording(day_map, tmp_path, e
 @pytest.mark.parametrize("stop", [signal.SIGTERM, signal.SIGINT, signal.SIGHUP], ids=lambda s: s.name)
 def test_every_stop_signal_to_lostx_alone_ends_the_web_viewer_with_it(day_map, robotcar, tmp_path, env, stop):
     # Started as a script's background job is: with SIGINT ignored. The signal goes to lostx's pid only, not to
-    # its process group, so nothing but lostx itself can end the web viewer's file server.
+    # its process group, so nothing but lostx itself can end the web viewer's file server. SIGHUP as a terminal
+    # leaves it, whatever the test run inherited (under nohup lostx rightly keeps a SIGHUP ignored).
     rrd = tmp_path / "m.rrd"
+
+    def background_job() -> None:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        signal.signal(signal.SIGHUP, signal.SIG_DFL)
+
     proc = subprocess.Popen(lostx_command("match", str(day_map.path), str(robotcar / "night"), "--out",
                                           str(tmp_path / "m.csv"), "--rrd", str(rrd), "--web", "--web-port", "0",
                                           "--grpc-port", "0", "--quiet"),
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, stdin=subprocess.DEVNULL,
-                            env=env, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))
+                            env=env, preexec_fn=background_job)
     stderr = Output(proc.stderr)
     Output(proc.stdout)
     try:
