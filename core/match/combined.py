@@ -44,14 +44,6 @@ class LayoutComparison:
         self.seconds = 0.0
         """The comparisons took this long (on their thread, where :meth:`start` put them on one)."""
 
-    def _refined(self, view: LayoutGrid, stack: GridStack, turns: list[float]) -> np.ndarray:
-        """(n,) ``view``'s best similarity with each grid of ``stack`` over the sideways shifts and the turns (each
-        turn as it lies and shifted), the view as it lies left out (its similarity already known)."""
-        offsets = range(-self.shifts, self.shifts + 1)
-        variants = [shifted(view, s) for s in offsets if s]
-        variants += [shifted(turned, s) for turned in [view.rotated(angle) for angle in turns] for s in offsets]
-        return correlations(variants, stack, self.weights, self.min_cells).max(axis=0)
-
     def heading(self, index: int) -> LayoutScores:
         """The scores under heading ``index`` (0: as the grid lies, 1: turned)."""
         return LayoutScores(self, index)
@@ -91,6 +83,14 @@ class LayoutComparison:
                 scores[h, best] = np.maximum(scores[h, best], self._refined(view, maps.rows(best), turns))
         self.seconds += time.perf_counter() - start
         return scores
+
+    def _refined(self, view: LayoutGrid, stack: GridStack, turns: list[float]) -> np.ndarray:
+        """(n,) ``view``'s best similarity with each grid of ``stack`` over the sideways shifts and the turns (each
+        turn as it lies and shifted), the view as it lies left out (its similarity already known)."""
+        offsets = range(-self.shifts, self.shifts + 1)
+        variants = [shifted(view, s) for s in offsets if s]
+        variants += [shifted(turned, s) for turned in [view.rotated(angle) for angle in turns] for s in offsets]
+        return correlations(variants, stack, self.weights, self.min_cells).max(axis=0)
 
 
 @dataclass
