@@ -124,14 +124,6 @@ def test_comparisons_equal_each_pair_compared_alone(rng, seen):
                                [_pearson_mean(query.turned(), g, WEIGHTS, 25) for g in maps], atol=1e-5)
 
 
-def test_the_shifts_aside_and_the_grids_as_they_lie_make_every_shift(rng):
-    stack, query = GridStack.of([_grid(rng) for _ in range(30)]), _grid(rng)
-    aside = similarities([query], stack, WEIGHTS, shifts=2, min_cells=5, aside=True)[0]
-    lying = similarity(query, stack, WEIGHTS, min_cells=5)
-    assert np.allclose(np.maximum(aside, lying), similarity(query, stack, WEIGHTS, shifts=2, min_cells=5), atol=1e-6)
-    assert not np.allclose(aside, lying)
-
-
 def test_identical_grids_tie_exactly_wherever_they_lie(rng):
     """A stack's grids are compared alike wherever they lie in it (a map frame repeated where the camera stood still
     ties with its copies, and the lower index wins as with any tie)."""

@@ -93,11 +93,10 @@ def similarity(query: LayoutGrid, maps: GridStack, weights: np.ndarray, shifts: 
 
 
 def similarities(queries: Sequence[LayoutGrid], maps: GridStack, weights: np.ndarray, shifts: int = 0,
-                 min_cells: int = 1, aside: bool = False) -> np.ndarray:
-    """(Q, N) :func:`similarity` of several queries (a frame's grid under both headings, its turns) in one
-    pass over the map's grids; ``aside``: best over the shifts alone (1 to ``shifts`` cells either way), the
-    grids as they lie left out (their similarity already known)."""
-    offsets = [s for s in range(-shifts, shifts + 1) if s or not aside]
+                 min_cells: int = 1) -> np.ndarray:
+    """(Q, N) :func:`similarity` of several queries (a frame's grid under both headings) in one pass over the
+    map's grids."""
+    offsets = range(-shifts, shifts + 1)
     variants = [shifted(g, s) for g in queries for s in offsets]
     score = correlations(variants, maps, weights, min_cells)
     return score.reshape(len(queries), len(offsets), maps.n).max(axis=1)
