@@ -119,6 +119,61 @@ def correlations(variants: Sequence[LayoutGrid], maps: GridStack, weights: np.nd
     return np.where(n[:, 0] >= min_cells, score, -np.inf)
 
 
+def refined(views: Sequence[LayoutGrid], maps: GridStack, rows: np.ndarray, weights: np.ndarray, shifts: int,
+            turns: Sequence[float], min_cells: int) -> np.ndarray:
+    """(H, K) each view's best similarity with its own ``rows`` ((H, K) map grids) over the sideways shifts of up to
+    ``shifts`` cells and the ``turns`` (degrees, each also shifted), the view as it lies unshifted left out.
+
+    Every view, variant and map grid in a few batched products: each heading's grids are few, so that the cost lies
+    in the number of calls more than in the arithmetic. The map's sums of squared levels (beyond float32's exact
+    integers) are summed in float64."""
+    variants = _variants(views, shifts, turns)  # (H, V, 1 + C, P)
+    m, q = variants[:, :, 0], variants[:, :, 1:]
+    h, v, c, p = q.shape
+    k = rows.shape[1]
+    cells = np.ascontiguousarray(maps.grids[rows].transpose(0, 2, 1, 3), dtype=np.float32)  # (H, 1 + C, K, P)
+    mask, y = cells[:, 0], cells[:, 1:]
+    own = mask @ np.concatenate([m[:, :, None], q, q * q], axis=2).reshape(h, v * (1 + 2 * c), p).transpose(0, 2, 1)
+    own = own.reshape(h, k, v, 1 + 2 * c).astype(np.float64)
+    n, sx, sxx = own[..., 0], own[..., 1: 1 + c], own[..., 1 + c:]  # (H, K, V), (H, K, V, C) twice
+    seen = m.transpose(0, 2, 1)  # (H, P, V)
+    unit = 1.0 / maps.scale
+
+    def by_grid(sums: np.ndarray) -> np.ndarray:
+        """(H, C * K, V) or (H, C, K, V) sums as (H, K, V, C) float64."""
+        return sums.reshape(h, c, k, v).transpose(0, 2, 3, 1).astype(np.float64)
+
+    sy = by_grid(y.reshape(h, c * k, p) @ seen) * unit
+    squares = np.square(y, dtype=np.float64).reshape(h, c * k, p)
+    syy = by_grid(squares @ seen.astype(np.float64)) * unit**2
+    sxy = by_grid(y @ q.transpose(0, 2, 3, 1)) * unit
+    with np.errstate(divide="ignore", invalid="ignore"):
+        count = np.maximum(n, 1.0)[..., None]
+        cov = sxy - sx * sy / count
+        var = (sxx - sx * sx / count) * (syy - sy * sy / count)
+        r = np.where(var > 1e-12, cov / np.sqrt(np.maximum(var, 1e-12)), 0.0)
+    w = np.asarray(weights, dtype=np.float64)
+    score = (r * (w / w.sum())).sum(axis=3)  # (H, K, V)
+    return np.where(n >= min_cells, score, -np.inf).max(axis=2)
+
+
+def _variants(views: Sequence[LayoutGrid], shifts: int, turns: Sequence[float]) -> np.ndarray:
+    """(H, V, 1 + C, P) float32 each view's mask and values (zero where unobserved) shifted sideways by every offset
+    up to ``shifts`` cells but 0, then turned by each of ``turns`` and shifted by every offset (0 included)."""
+    turned = [[view] + [view.rotated(angle) for angle in turns] for view in views]
+    cells = np.stack([[np.concatenate([g.mask[None], g.values]) for g in row] for row in turned]).astype(np.float32)
+    a, x = cells.shape[-2:]
+    padded = np.zeros(cells.shape[:-1] + (x + 2 * shifts,), dtype=np.float32)
+    padded[..., shifts: shifts + x] = cells
+    # Window j of the padded columns is the grid moved ``shifts - j`` cells to the right, moved-in cells unobserved.
+    windows = np.lib.stride_tricks.sliding_window_view(padded, x, axis=-1)  # (H, 1 + T, 1 + C, A, 2S + 1, X)
+    which = [(0, j) for j in range(2 * shifts + 1) if j != shifts]
+    which += [(t, j) for t in range(1, len(turns) + 1) for j in range(2 * shifts + 1)]
+    turn, window = np.array(which).T
+    picked = windows[:, turn, :, :, window]  # (V, H, 1 + C, A, X)
+    return np.ascontiguousarray(picked.transpose(1, 0, 2, 3, 4)).reshape(len(views), len(which), cells.shape[2], a * x)
+
+
 def observed_sums(maps: GridStack, m: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """n (V, 1, N), S_y and S_yy (V, C, N), float64: each map grid's count, sum and sum of squares over the cells
     each variant (mask ``m`` (V, P)) observed. Summed over the fewer of the cells some variant observed and those

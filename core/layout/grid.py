@@ -49,9 +49,15 @@ class LayoutGrid:
         # Row index grows along the camera's axis, column index to its right: anticlockwise from above is
         # clockwise in these (row, column) coordinates.
         matrix = cv2.getRotationMatrix2D(((cols - 1) / 2.0, (rows - 1) / 2.0), -degrees, 1.0)
-        warp = dict(flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
-        mask = cv2.warpAffine(self.mask.astype(np.float32), matrix, (cols, rows), **warp) > 0.99
-        values = np.stack([cv2.warpAffine(v, matrix, (cols, rows), **warp) for v in self.values])
+        # The mask and the channels warped four at a time (channels last; OpenCV resamples 4-channel images as it does
+        # 1-channel ones, not so 2-channel ones), padded with empty channels to a multiple of four.
+        cells = np.concatenate([self.mask[None].astype(np.float32), self.values.astype(np.float32)])
+        cells = np.concatenate([cells, np.zeros((-len(cells) % 4, rows, cols), np.float32)])
+        warped = np.concatenate([cv2.warpAffine(np.ascontiguousarray(four.transpose(1, 2, 0)), matrix, (cols, rows),
+                                                flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                                                borderValue=0.0).transpose(2, 0, 1)
+                                 for four in cells.reshape(-1, 4, rows, cols)])
+        mask, values = warped[0] > 0.99, warped[1: 1 + len(self.values)]
         return LayoutGrid(np.where(mask, values, 0.0).astype(np.float32), mask)
 
     def turned(self) -> "LayoutGrid":

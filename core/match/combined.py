@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..layout.compare import GridStack, correlations, shifted, similarities
+from ..layout.compare import GridStack, refined, similarities
 from ..layout.grid import LayoutGrid
 from .scores import MapScores
 
@@ -78,19 +78,12 @@ class LayoutComparison:
         turns = [angle for angle in self.turns if angle != 0.0]
         if (self.shifts or turns) and maps.n:
             ranked = np.where(np.isfinite(scores), scores, -np.inf)
-            for h, view in enumerate(views):
-                best = np.argsort(-ranked[h], kind="stable")[:REFINE]
-                scores[h, best] = np.maximum(scores[h, best], self._refined(view, maps.rows(best), turns))
+            best = np.argsort(-ranked, axis=1, kind="stable")[:, :REFINE]
+            rows = np.take_along_axis(scores, best, axis=1)
+            again = refined(views, maps, best, self.weights, self.shifts, turns, self.min_cells)
+            np.put_along_axis(scores, best, np.maximum(rows, again), axis=1)
         self.seconds += time.perf_counter() - start
         return scores
-
-    def _refined(self, view: LayoutGrid, stack: GridStack, turns: list[float]) -> np.ndarray:
-        """(n,) ``view``'s best similarity with each grid of ``stack`` over the sideways shifts and the turns (each
-        turn as it lies and shifted), the view as it lies left out (its similarity already known)."""
-        offsets = range(-self.shifts, self.shifts + 1)
-        variants = [shifted(view, s) for s in offsets if s]
-        variants += [shifted(turned, s) for turned in [view.rotated(angle) for angle in turns] for s in offsets]
-        return correlations(variants, stack, self.weights, self.min_cells).max(axis=0)
 
 
 @dataclass
