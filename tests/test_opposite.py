@@ -110,6 +110,24 @@ def test_the_sequence_follows_the_road_through_the_roundabout(scene, maps, mosai
     assert right == {"distance": 17, "frames": 10}  # measured: every frame of the roundabout, against 10 of 17
 
 
+def test_a_description_matched_later_is_compared_with_its_own_grid(scene, maps, mosaic):
+    """Matching a frame starts its layout's comparison with the map as soon as its grid is known, beside its
+    descriptor. Descriptions made ahead (each asking for its comparison) and matched afterwards are each compared
+    with their own grid: the same candidates and scores as frames matched one by one."""
+    from lostx.core.match.matcher import PlaceMatcher
+
+    frames = [dataclasses.replace(f, camera=None) for f in open_traverse(scene / "front").subset(range(10, 16))]
+    one_by_one = PlaceMatcher(maps["rear"], Config(), mosaic)
+    expected = [one_by_one.match(f) for f in frames]
+    ahead = PlaceMatcher(maps["rear"], Config(), mosaic)
+    described = [ahead.describe(f, compare=True) for f in frames]
+    for description, match in zip(described, expected):
+        got = ahead.match_description(description)
+        for heading in ("same", "opposite"):
+            assert np.array_equal(got[heading].candidates, match[heading].candidates)
+            assert np.array_equal(got[heading].scores, match[heading].scores)
+
+
 def test_a_process_that_forks_after_matching_gets_the_same_answers_in_the_child(scene, maps, mosaic):
     """The layout's comparison with the map runs beside verification on a thread of its own. A process that forks
     after matching (a worker pool, a daemon) must get the same answers in the child, not a comparison that never

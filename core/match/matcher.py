@@ -210,6 +210,9 @@ class PlaceMatcher:
         """The latest LoST query's keypoint evidence (to verify further candidates against)."""
         self._worker: ThreadPoolExecutor | None = None
         self._worker_pid = 0
+        self._started: tuple[LayoutGrid, LayoutComparison, int] | None = None
+        """The grid of the frame :meth:`match` describes, its comparison with the map (started while the frame's
+        descriptor is computed) and the process whose layout thread runs it."""
         self.layout_off: str | None = None
         """Why the layout takes no part (None while it does, or before a frame showed it cannot)."""
         self._placer: FramePlacer | None = None
@@ -252,6 +255,7 @@ class PlaceMatcher:
 
     def reset(self) -> None:
         self.last_evidence = None
+        self._started = None
         if isinstance(self.describer, LostDescriber):
             self.normaliser.reset()
             self.means.reset()
@@ -289,12 +293,13 @@ class PlaceMatcher:
         image = check_frame(frame.image)
         if isinstance(self.describer, ThumbnailDescriber):
             return self._match_thumbnail(image)
-        return self.match_description(self.describe(frame))
+        return self.match_description(self.describe(frame, compare=True))
 
-    def describe(self, frame: Frame, appearance: bool = False) -> QueryDescription:
+    def describe(self, frame: Frame, appearance: bool = False, compare: bool = False) -> QueryDescription:
         """Run the network on a LoST query frame, and place it on the road with its layout where that is on
         (the expensive, cacheable half of :meth:`match`, in stream order); ``appearance`` also pools the GeM
-        descriptor of the appearance baseline."""
+        descriptor of the appearance baseline. ``compare``: the frame is matched next; its layout's comparison with
+        the map starts as soon as its grid is known, beside its descriptor."""
         describer = self.describer
         assert isinstance(describer, LostDescriber)
         image = check_frame(frame.image)
@@ -302,10 +307,15 @@ class PlaceMatcher:
         semantic = describer.backbone(self.geometry.prepare(image, frame.camera))
         t1 = time.perf_counter()
         described = describer.from_semantic(semantic)
-        raw = describer.descriptor(described, self.means(described))
         t2 = time.perf_counter()
-        timings = {"network": t1 - t0, "descriptor": t2 - t1}
+        timings = {"network": t1 - t0}
         layout, progress = self._place(frame, described.label_map, timings)
+        if compare and layout is not None and self.config.verify.enabled:
+            comparison = self._layout_comparison(layout)
+            self._started = None if comparison is None else (layout, comparison, os.getpid())
+        t3 = time.perf_counter()
+        raw = describer.descriptor(described, self.means(described))
+        timings["descriptor"] = (t2 - t1) + (time.perf_counter() - t3)
         return QueryDescription(raw, described.appearance() if appearance else None, described.evidence,
                                 described.labels, timings, layout, progress)
 
@@ -403,7 +413,7 @@ class PlaceMatcher:
                            timings: dict[str, float], t0: float, removed: slice | None = None,
                            layout: LayoutGrid | None = None) -> FrameMatch:
         cfg = self.config.verify
-        comparison = self._layout_comparison(layout) if cfg.enabled else None
+        comparison = self._comparison(layout) if cfg.enabled else None
         distance_of = QueryDistances(self.search, vector)
         nearest, near = self.search.nearest(vector, self._nearest_count, removed, distance_of)
         shortlist, distances = nearest[: cfg.top_k], near[: cfg.top_k]
@@ -473,6 +483,14 @@ class PlaceMatcher:
         if self.map.n_frames <= EVERY_FRAME_MAX:
             comparison.start(self._pool())
         return comparison
+
+    def _comparison(self, grid: LayoutGrid | None) -> LayoutComparison | None:
+        """The comparison of ``grid`` with the map: the one started when its frame was described (in this process:
+        a forked child has no thread running the parent's), or a new one."""
+        started, self._started = self._started, None
+        if started is not None and started[0] is grid and started[2] == os.getpid():
+            return started[1]
+        return self._layout_comparison(grid)
 
     def _with_layout(self, answers: dict[str, MatchResult], comparison: LayoutComparison, distance_of: QueryDistances,
                      verified: Verification, lost_vote: float,
