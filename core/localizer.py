@@ -57,7 +57,7 @@ import numpy as np
 from .backbones import Backbone
 from .config import Config, HeadingConfig, TrackerConfig, looks_up_costs
 from .decide.calibration import PLACES, UNCALIBRATED, Calibration, load, settings_key, store
-from .decide.estimate import Candidate, DeferredCorrespondences, Estimate, Evidence
+from .decide.estimate import Candidate, DeferredCorrespondences, DeferredLayout, Estimate, Evidence, LayoutView
 from .decide.tail import leads
 from .describe.inputcheck import InputCheck
 from .describe.keypoints import KeypointEvidence
@@ -313,12 +313,19 @@ class Localizer:
                 correspondences[reference] = functools.partial(self._correspondences, result, reference, query)
         layout = None
         if result.layout is not None:
-            answer = self.map.layout_grid(index)
-            # The query's grid as it is, the answer's turned where the query views the route the other way.
-            layout = (result.layout.query.turned() if result.heading == "opposite" else result.layout.query,
-                      answer.turned() if result.heading == "opposite" else answer)
+            layout = DeferredLayout(functools.partial(self._layout_view, result, index))
         return Evidence(query_labels=result.query_labels, correspondences=DeferredCorrespondences(correspondences),
                         grid=getattr(self.map, "grid", None), layout=layout)
+
+    def _layout_view(self, result: MatchResult, index: int) -> LayoutView:
+        """The frame's grid turned and shifted as it best fits map frame ``index``'s, both drawn in the query camera's
+        view: turned 180 degrees back where it views the route the opposite way (a shift then changes side)."""
+        answer = self.map.layout_grid(index)
+        fit = result.layout.aligned(answer)  # type: ignore[union-attr]
+        metres = fit.shift * self.matcher.layout_config.cell
+        if result.heading == "opposite":
+            return LayoutView(fit.grid.turned(), answer.turned(), fit.turn, -metres)
+        return LayoutView(fit.grid, answer, fit.turn, metres)
 
     def _correspondences(self, result: MatchResult, reference: int,
                          query: KeypointEvidence | None) -> Correspondences | None:

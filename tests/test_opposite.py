@@ -110,6 +110,34 @@ def test_the_sequence_follows_the_road_through_the_roundabout(scene, maps, mosai
     assert right == {"distance": 17, "frames": 10}  # measured: every frame of the roundabout, against 10 of 17
 
 
+def test_the_layout_is_drawn_as_it_fits_the_answer(scene, maps, mosaic):
+    """The viewer's layout: the answer's grid turned 180 degrees into the front camera's view, and the query's turned
+    a few degrees and shifted sideways as it fits the answer best, as the comparison scored that map frame; here
+    some frames fit best turned or shifted."""
+    from lostx.core.layout.compare import GridStack, similarity
+    from lostx.core.match.matcher import PlaceMatcher
+
+    frames = [dataclasses.replace(f, camera=None) for f in open_traverse(scene / "front").subset(range(10, 26))]
+    matcher = PlaceMatcher(maps["rear"], Config(), mosaic)
+    localizer = Localizer(maps["rear"], Config(), mosaic)
+    moved = 0
+    for frame in frames:
+        match = matcher.match(frame)
+        estimate = localizer.update(frame, match)
+        assert estimate.heading == "opposite"
+        scores = match["opposite"].layout
+        view = estimate.evidence.layout.get()
+        answer = GridStack.of([view.answer])
+        assert np.array_equal(view.answer.values, maps["rear"].layout_grid(estimate.match_index).turned().values)
+        weights = scores.comparison.weights
+        drawn = similarity(view.query, answer, weights, 0, 25)[0]
+        as_seen = similarity(scores.query.turned(), answer, weights, 0, 25)[0]  # the grid as its camera saw it
+        assert drawn >= as_seen - 1e-6
+        assert drawn == pytest.approx(scores.every()[estimate.match_index], abs=1e-4)
+        moved += bool(view.turn or view.shift)
+    assert moved >= len(frames) // 2, moved
+
+
 def test_a_description_matched_later_is_compared_with_its_own_grid(scene, maps, mosaic):
     """Matching a frame starts its layout's comparison with the map as soon as its grid is known, beside its
     descriptor. Descriptions made ahead (each asking for its comparison) and matched afterwards are each compared

@@ -627,3 +627,15 @@ def test_a_viewer_that_is_gone_costs_no_line_per_message(tmp_path):
     assert proc.returncode == 0, proc.stderr
     assert "ERROR" not in proc.stderr and "WARN" not in proc.stderr, proc.stderr
     assert proc.stdout.startswith("flush:")  # the failure still reaches lostx, which says it once
+
+
+def test_the_layouts_query_caption_says_how_its_grid_was_turned_and_shifted():
+    from lostx.core.decide.estimate import LayoutView
+    from lostx.core.layout.grid import LayoutGrid
+    from lostx.viz.layout_view import query_caption
+
+    grid = LayoutGrid(np.zeros((6, 20, 15), np.float32), np.ones((20, 15), bool))
+    assert query_caption(LayoutView(grid, grid, 0.0, 0.0)) == "query"
+    assert query_caption(LayoutView(grid, grid, 2.0, -2.0)) == "query (turned 2 deg left, 2 m left)"
+    assert query_caption(LayoutView(grid, grid, -2.0, 0.0)) == "query (turned 2 deg right)"
+    assert query_caption(LayoutView(grid, grid, 0.0, 4.0)) == "query (4 m right)"

@@ -1,6 +1,6 @@
 """The layout beside the match: the query's bird's-eye grid and the matched reference's, as they were compared
-(the reference's turned 180 degrees when the query views the route the other way), so a person sees why a
-place matched.
+(the reference's turned 180 degrees when the query views the route the other way, the query's turned a few
+degrees and shifted sideways as it fits best), so a person sees why a place matched.
 
 Each cell takes the colour of what dominates it: road, other ground, or the thing standing on the ground there
 (building, vegetation, vehicle, other), brighter where more of it; unobserved cells stay dark. The camera is at
@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import rerun as rr
 
-from lostx.core.decide.estimate import Estimate
+from lostx.core.decide.estimate import Estimate, LayoutView
 from lostx.core.layout.classes import CHANNELS
 from lostx.core.layout.grid import CONTACT_RANGE, LayoutGrid
 
@@ -47,19 +47,30 @@ def layout_picture(grid: LayoutGrid) -> np.ndarray:
 
 def log_layout(rec: rr.RecordingStream, est: Estimate) -> None:
     """Log the query's and the answer's grids side by side (nothing where the layout took no part)."""
-    layout = est.evidence.layout if est.evidence is not None else None
-    if layout is None:
+    deferred = est.evidence.layout if est.evidence is not None else None
+    if deferred is None:
         rec.log(e.LAYOUT, rr.Clear(recursive=True))
         return
-    query, answer = layout
-    width = query.mask.shape[1] * CELL_PIXELS
-    rec.log(e.LAYOUT_QUERY, rr.Image(layout_picture(query)))
-    rec.log(e.LAYOUT_ANSWER, rr.Image(layout_picture(answer)))
+    view = deferred.get()
+    width = view.query.mask.shape[1] * CELL_PIXELS
+    rec.log(e.LAYOUT_QUERY, rr.Image(layout_picture(view.query)))
+    rec.log(e.LAYOUT_ANSWER, rr.Image(layout_picture(view.answer)))
     rec.log(e.LAYOUT_ANSWER_PLACE, rr.Transform3D(translation=[width + GAP * CELL_PIXELS, 0.0, 0.0]))
     turned = " (turned)" if est.opposite else ""
     rec.log(e.LAYOUT_CAPTIONS, rr.Points2D(
         [[width / 2, -6.0], [width * 1.5 + GAP * CELL_PIXELS, -6.0]],
-        labels=["query", f"reference {est.match_index}{turned}"], radii=rr.Radius.ui_points(0.1), show_labels=True))
+        labels=[query_caption(view), f"reference {est.match_index}{turned}"], radii=rr.Radius.ui_points(0.1),
+        show_labels=True))
+
+
+def query_caption(view: LayoutView) -> str:
+    """"query", with how its grid was turned and shifted to fit the reference's."""
+    moves = []
+    if view.turn:
+        moves.append(f"turned {abs(view.turn):g} deg {'left' if view.turn > 0 else 'right'}")
+    if view.shift:
+        moves.append(f"{abs(view.shift):g} m {'right' if view.shift > 0 else 'left'}")
+    return "query" + (f" ({', '.join(moves)})" if moves else "")
 
 
 LEGEND = tuple(zip(CHANNELS, (tuple(int(v) for v in c) for c in CHANNEL_COLOURS)))

@@ -57,6 +57,33 @@ class DeferredCorrespondences(Mapping[int, "Correspondences | None"]):
         return len(self._compute)
 
 
+@dataclass(frozen=True)
+class LayoutView:
+    """The query's layout grid and the answer's as they were compared, both in the query camera's view (the
+    answer's turned 180 degrees where the query views the route the opposite way)."""
+
+    query: LayoutGrid
+    """The query's grid, turned and shifted as it best fits the answer's."""
+    answer: LayoutGrid
+    turn: float
+    """Degrees the query's grid is turned (anticlockwise seen from above)."""
+    shift: float
+    """Metres it is shifted, positive to the camera's right."""
+
+
+class DeferredLayout:
+    """A :class:`LayoutView`, made when first asked for: only drawing needs it."""
+
+    def __init__(self, make: Callable[[], LayoutView]) -> None:
+        self._make = make
+        self._view: LayoutView | None = None
+
+    def get(self) -> LayoutView:
+        if self._view is None:
+            self._view = self._make()
+        return self._view
+
+
 @dataclass
 class Evidence:
     """Heavy per-frame arrays for visualisation; never sent in result messages."""
@@ -72,9 +99,8 @@ class Evidence:
     """(L, k) per-frame candidate costs in the sequence window, oldest row first (inf = no candidate)."""
     sequence_candidates: np.ndarray | None = None
     """(L, k) the reference indices behind ``sequence_window``; -1 where empty."""
-    layout: tuple[LayoutGrid, LayoutGrid] | None = None
-    """The query's layout grid and the answer's, as they were compared (the answer's turned 180 degrees when the
-    query views the route the opposite way), where the layout took part."""
+    layout: DeferredLayout | None = None
+    """The query's layout grid and the answer's as they were compared, where the layout took part."""
 
 
 @dataclass

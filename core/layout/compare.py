@@ -18,6 +18,7 @@ those it did), so that a comparison reads only a few of the map's cells for them
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
@@ -117,6 +118,37 @@ def correlations(variants: Sequence[LayoutGrid], maps: GridStack, weights: np.nd
     w = np.asarray(weights, dtype=np.float64)
     score = (r * (w / w.sum())[:, None]).sum(axis=1)  # (V, N), each sum channel by channel in order (no BLAS)
     return np.where(n[:, 0] >= min_cells, score, -np.inf)
+
+
+@dataclass(frozen=True)
+class Alignment:
+    """A grid turned and shifted sideways as it best fits another."""
+
+    grid: LayoutGrid
+    """The grid so turned and shifted."""
+    turn: float
+    """Degrees, anticlockwise seen from above."""
+    shift: int
+    """Cells, positive to the right."""
+    similarity: float
+
+
+def aligned(view: LayoutGrid, target: LayoutGrid, weights: np.ndarray, shifts: int, turns: Sequence[float],
+            min_cells: int) -> Alignment:
+    """``view`` turned by each of ``turns`` (0 included) and shifted by up to ``shifts`` cells, as it best fits
+    ``target`` (the least turned and shifted of equals)."""
+    stack = GridStack.of([target])
+    offsets = sorted(range(-shifts, shifts + 1), key=abs)
+    best: Alignment | None = None
+    for angle in sorted({0.0, *turns}, key=abs):
+        turned = view.rotated(angle)
+        for shift in offsets:
+            candidate = shifted(turned, shift)
+            score = float(similarity(candidate, stack, weights, 0, min_cells)[0])
+            if best is None or score > best.similarity:
+                best = Alignment(candidate, angle, shift, score)
+    assert best is not None
+    return best
 
 
 def refined(views: Sequence[LayoutGrid], maps: GridStack, rows: np.ndarray, weights: np.ndarray, shifts: int,

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..layout.compare import GridStack, refined, similarities
+from ..layout.compare import Alignment, GridStack, aligned, refined, similarities
 from ..layout.grid import LayoutGrid
 from .scores import MapScores
 
@@ -108,6 +108,11 @@ class LayoutScores:
 
     def at(self, refs: np.ndarray) -> np.ndarray:
         return self.comparison.at(np.asarray(refs, dtype=np.int64), self.index)
+
+    def aligned(self, grid: LayoutGrid) -> Alignment:
+        """The frame's grid under this heading, turned and shifted as it best fits ``grid`` (a map frame's)."""
+        c = self.comparison
+        return aligned(self.query, grid, c.weights, c.shifts, c.turns, c.min_cells)
 
 
 def sampled(n_frames: int) -> np.ndarray:
