@@ -76,11 +76,12 @@ def accumulate(frames: Sequence[FramePoints], poses: np.ndarray, current: np.nda
     ground poses in one odometry frame; ``current`` is one of them for a live frame)."""
     rows, cols = grid_shape(config)
     here = relative(current, np.asarray(poses, dtype=np.float64).reshape(-1, 3))  # each frame's pose in the current's
-    rays = cell_weights([(f.rays, f.ray_kind, f.ray_weight) for f in frames], here, 3, config)
-    contact = cell_weights([(f.contacts, f.contact_kind, f.contact_weight) for f in frames], here, len(CONTACTS),
-                           config)
-    rays = rays.reshape(3, rows, cols)
-    contact = contact.reshape(len(CONTACTS), rows, cols)
+    # Rays and contacts moved and counted together, the contacts' kinds after the rays' three: a cell of one kind
+    # receives the same points in the same order as counted apart.
+    weights = cell_weights([(np.concatenate([f.rays, f.contacts]), np.concatenate([f.ray_kind, f.contact_kind + 3]),
+                             np.concatenate([f.ray_weight, f.contact_weight])) for f in frames], here,
+                           3 + len(CONTACTS), config).reshape(3 + len(CONTACTS), rows, cols)
+    rays, contact = weights[:3], weights[3:]
     landed = rays.sum(axis=0)
     mask = landed > 0
     values = np.empty((len(CHANNELS), rows, cols), dtype=np.float32)
