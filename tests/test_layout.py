@@ -10,7 +10,7 @@ import pytest
 
 from lostx.core.config import Config, LayoutConfig
 from lostx.core.layout.classes import CHANNELS, OBJECT, ROAD, LayoutClasses
-from lostx.core.layout.compare import GridStack, similarities, similarity
+from lostx.core.layout.compare import GridStack, shifted, similarities, similarity
 from lostx.core.layout.describer import FramePlacer, LiveLayout, Placed, map_grid, spread
 from lostx.core.layout.grid import LayoutGrid, accumulate, cell_weights, grid_shape, pack, unpack, unpack_levels
 from lostx.core.layout.projection import FramePoints, GroundProjector
@@ -78,7 +78,6 @@ def _smooth_grid(rng: np.random.Generator, shape=(20, 15)) -> LayoutGrid:
 def test_the_best_grids_are_compared_again_turned_a_few_degrees(rng):
     """A map grid of the same place seen 2 degrees apart (a curve's two ends) is found as itself by the query turned
     2 degrees; the refined scores equal every turn and shift compared with every map frame, one pair at a time."""
-    from lostx.core.layout.compare import shifted
     from lostx.core.match import combined
 
     query = _smooth_grid(rng)
@@ -90,8 +89,7 @@ def test_the_best_grids_are_compared_again_turned_a_few_degrees(rng):
     scores = turning.every()
     assert scores[0, 11] == pytest.approx(1.0, abs=1e-5) and plain[11] < 0.99
     for heading, view in enumerate((query, query.turned())):
-        variants = [shifted(view.rotated(angle), s) for angle in (-2.0, 0.0, 2.0) for s in (-1, 0, 1)]
-        exact = np.max([[_pearson_mean(v, g, WEIGHTS, 5) for g in grids] for v in variants], axis=0)
+        exact = _best_turned_and_shifted(view, grids, 5)
         assert np.allclose(scores[heading], exact, atol=5e-5)  # float32 sums of smooth grids
 
 
@@ -107,6 +105,13 @@ def _pearson_mean(query: LayoutGrid, grid: LayoutGrid, weights: np.ndarray, min_
         var = (x @ x) * (y @ y)
         r.append((x @ y) / np.sqrt(var) if var > 1e-12 else 0.0)
     return float(np.average(r, weights=weights))
+
+
+def _best_turned_and_shifted(view: LayoutGrid, maps: list[LayoutGrid], min_cells: int) -> np.ndarray:
+    """Each map grid's best similarity with ``view`` turned 2 degrees either way or not and shifted a cell either way
+    or not, each pair compared alone (:func:`_pearson_mean`)."""
+    variants = [shifted(view.rotated(angle), s) for angle in (-2.0, 0.0, 2.0) for s in (-1, 0, 1)]
+    return np.max([[_pearson_mean(v, g, WEIGHTS, min_cells) for g in maps] for v in variants], axis=0)
 
 
 @pytest.mark.parametrize("seen", [0.3, 0.6, 0.97])
@@ -277,7 +282,6 @@ def test_turned_and_shifted_comparisons_with_a_maps_stored_grids_equal_each_pair
     """Front frames against the rear camera's grids as a map stores them (one-byte levels; classes absent from
     many grids, whose channels are all zero: no correlation there, not rounding noise): each heading's scores are
     the best of every turn and shift, each pair compared alone in float64."""
-    from lostx.core.layout.compare import shifted
     from lostx.core.match import combined
 
     config = Config()
@@ -293,8 +297,7 @@ def test_turned_and_shifted_comparisons_with_a_maps_stored_grids_equal_each_pair
         comparison = combined.LayoutComparison(query, stack, WEIGHTS, shifts=1, min_cells=25, turns=(-2.0, 0.0, 2.0))
         scores = comparison.every()
         for heading, view in enumerate((query, query.turned())):
-            variants = [shifted(view.rotated(angle), s) for angle in (-2.0, 0.0, 2.0) for s in (-1, 0, 1)]
-            exact = np.max([[_pearson_mean(v, g, WEIGHTS, 25) for g in maps] for v in variants], axis=0)
+            exact = _best_turned_and_shifted(view, maps, 25)
             assert np.allclose(scores[heading], exact, atol=1e-5)
             assert scores[heading].max() <= 1.0
 

@@ -137,18 +137,12 @@ def aligned(view: LayoutGrid, target: LayoutGrid, weights: np.ndarray, shifts: i
             min_cells: int) -> Alignment:
     """``view`` turned by each of ``turns`` (0 included) and shifted by up to ``shifts`` cells, as it best fits
     ``target`` (the least turned and shifted of equals)."""
-    stack = GridStack.of([target])
-    offsets = sorted(range(-shifts, shifts + 1), key=abs)
-    best: Alignment | None = None
-    for angle in sorted({0.0, *turns}, key=abs):
-        turned = view.rotated(angle)
-        for shift in offsets:
-            candidate = shifted(turned, shift)
-            score = float(similarity(candidate, stack, weights, 0, min_cells)[0])
-            if best is None or score > best.similarity:
-                best = Alignment(candidate, angle, shift, score)
-    assert best is not None
-    return best
+    moves = [(angle, shift) for angle in sorted({0.0, *turns}, key=abs)
+             for shift in sorted(range(-shifts, shifts + 1), key=abs)]
+    candidates = [shifted(view.rotated(angle), shift) for angle, shift in moves]
+    scores = correlations(candidates, GridStack.of([target]), weights, min_cells)[:, 0]
+    best = int(np.argmax(scores))  # the first of equals
+    return Alignment(candidates[best], moves[best][0], moves[best][1], float(scores[best]))
 
 
 def refined(views: Sequence[LayoutGrid], maps: GridStack, rows: np.ndarray, weights: np.ndarray, shifts: int,
