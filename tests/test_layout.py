@@ -4,6 +4,7 @@ its motion, compared as it is and turned 180 degrees."""
 from __future__ import annotations
 
 import dataclasses
+import pickle
 
 import numpy as np
 import pytest
@@ -394,3 +395,22 @@ def test_at_a_high_frame_rate_or_stopped_the_window_keeps_its_reach_in_metres(rn
     kept_wrong = int((np.abs(kept - truth)[later] > 1).sum())
     recent_wrong = int((np.abs(recent - truth)[later] > 1).sum())
     assert kept_wrong <= 2 and recent_wrong >= 10 * max(kept_wrong, 1), (kept_wrong, recent_wrong)
+
+
+def test_a_stack_of_grids_goes_to_another_process_as_its_grids_alone_and_compares_the_same(rng):
+    """A map's grids are handed to the comparison process pickled: only the grids and their scale travel (not the
+    stack's cell-major copies), and the stack made again from them holds the same arrays and compares the same."""
+    n, a, x = 300, 20, 15
+    levels = rng.integers(0, 256, size=(n, len(CHANNELS), a, x), dtype=np.uint8)
+    masks = rng.random((n, a, x)) < 0.8
+    stack = GridStack(levels, masks, np.full(len(CHANNELS), 255.0))
+    sent = pickle.dumps(stack)
+    assert len(sent) < 1.01 * stack.grids.nbytes
+    again = pickle.loads(sent)
+    for name in ("grids", "cells", "scale", "totals", "square_totals"):
+        assert np.array_equal(getattr(again, name), getattr(stack, name)), name
+    assert [b for b, _ in again.blocks] == [b for b, _ in stack.blocks]
+    query = LayoutGrid(rng.random((len(CHANNELS), a, x)).astype(np.float32), rng.random((a, x)) < 0.9)
+    weights = np.ones(len(CHANNELS))
+    assert np.array_equal(similarities([query, query.turned()], again, weights, 1, 25),
+                          similarities([query, query.turned()], stack, weights, 1, 25))

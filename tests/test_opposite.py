@@ -195,3 +195,72 @@ def test_a_process_that_forks_after_matching_gets_the_same_answers_in_the_child(
     _, status = os.waitpid(child, 0)
     assert os.WIFEXITED(status) and os.WEXITSTATUS(status) == 0
     assert answers == rest()
+
+
+def _matches(matcher, frames) -> list[tuple[np.ndarray, ...]]:
+    out = []
+    for frame in frames:
+        match = matcher.match(frame)
+        out.append(tuple(a for h in ("same", "opposite")
+                         for a in (match[h].candidates, match[h].scores, match[h].layout.every())))
+    return out
+
+
+@pytest.fixture
+def in_a_process(monkeypatch):
+    """Layout comparisons in a process of their own on any map (by default, on maps of 200 frames or more)."""
+    from lostx.core.match import comparers
+
+    monkeypatch.setattr(comparers, "PROCESS_MIN_FRAMES", 0)
+    return comparers
+
+
+def test_comparisons_in_a_process_of_their_own_give_the_threads_answers(scene, maps, mosaic, in_a_process):
+    """A large map's layout comparisons run in a process that holds a copy of its grids (so that they do not share
+    the interpreter with verification): the same candidates and scores, to the bit, as on a thread, for frames
+    matched one by one and for descriptions made ahead and matched later (their replies kept apart)."""
+    import multiprocessing
+
+    from lostx.core.match.matcher import PlaceMatcher
+
+    frames = [dataclasses.replace(f, camera=None) for f in open_traverse(scene / "front").subset(range(10, 16))]
+    in_process = PlaceMatcher(maps["rear"], Config(), mosaic)
+    got = _matches(in_process, frames)
+    assert "lostx-layout-compare" in [p.name for p in multiprocessing.active_children()]
+    ahead = PlaceMatcher(maps["rear"], Config(), mosaic)
+    described = [ahead.describe(f, compare=True) for f in frames]
+    # The last one's comparison started when it was described; the first ones are not matched: their replies come
+    # first, unasked for. (Matching depends on the frames matched before; the layout's scores do not.)
+    later = [None, None] + [ahead.match_description(d) for d in described[2:]]
+
+    in_a_process.PROCESS_MIN_FRAMES = 10**9
+    on_a_thread = _matches(PlaceMatcher(maps["rear"], Config(), mosaic), frames)
+    for mine, theirs, late in zip(got, on_a_thread, later):
+        for a, b in zip(mine, theirs):
+            assert np.array_equal(a, b)
+        if late is not None:
+            assert np.array_equal(late["same"].layout.every(), theirs[2])
+            assert np.array_equal(late["opposite"].layout.every(), theirs[5])
+
+
+def test_matching_goes_on_when_the_comparison_process_dies(scene, maps, mosaic, in_a_process):
+    """Killed (out of memory, by a user), the comparison process is said to have ended, once; the frame waiting for
+    it is compared in the matcher's own process, the frames after it on a thread: the answers do not change."""
+    from lostx.core.match.matcher import PlaceMatcher
+
+    frames = [dataclasses.replace(f, camera=None) for f in open_traverse(scene / "front").subset(range(10, 16))]
+    in_a_process.PROCESS_MIN_FRAMES = 10**9
+    expected = _matches(PlaceMatcher(maps["rear"], Config(), mosaic), frames)
+    in_a_process.PROCESS_MIN_FRAMES = 0
+    matcher = PlaceMatcher(maps["rear"], Config(), mosaic)
+    got = _matches(matcher, frames[:2])
+    process = matcher._worker._process  # type: ignore[union-attr]
+    process.kill()
+    process.join(5)
+    with pytest.warns(in_a_process.ComparisonWarning, match="comparison process ended") as caught:
+        got += _matches(matcher, frames[2:])
+    assert len(caught) == 1
+    assert isinstance(matcher._worker, in_a_process.ThreadComparer)
+    for mine, theirs in zip(got, expected):
+        for a, b in zip(mine, theirs):
+            assert np.array_equal(a, b)

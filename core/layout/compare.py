@@ -41,9 +41,16 @@ class GridStack:
         dtype = np.uint8 if values.dtype == np.uint8 else np.float32
         mask = masks.reshape(n, 1, a * x).astype(dtype)
         grids = np.concatenate([mask, values.reshape(n, c, a * x).astype(dtype) * mask], axis=1)
+        self._of_grids(grids, np.ones(c) if scale is None else np.asarray(scale, dtype=np.float64).reshape(c))
+
+    def _of_grids(self, grids: np.ndarray, scale: np.ndarray) -> None:
         cells = np.ascontiguousarray(grids.transpose(1, 2, 0))
-        self._set(grids, cells, np.ones(c) if scale is None else np.asarray(scale, dtype=np.float64).reshape(c),
-                  cells.sum(axis=1, dtype=np.float64), np.einsum("cpn,cpn->cn", cells[1:], cells[1:], dtype=np.float64))
+        self._set(grids, cells, scale, cells.sum(axis=1, dtype=np.float64),
+                  np.einsum("cpn,cpn->cn", cells[1:], cells[1:], dtype=np.float64))
+
+    def __reduce__(self) -> tuple:
+        """Pickled as its grids and scale alone (to another process), the rest made again from them."""
+        return _stack_of_grids, (self.grids, self.scale)
 
     def _set(self, grids: np.ndarray, cells: np.ndarray, scale: np.ndarray, totals: np.ndarray,
              square_totals: np.ndarray) -> None:
@@ -71,6 +78,12 @@ class GridStack:
         out._set(grids, np.ascontiguousarray(grids.transpose(1, 2, 0)), self.scale, self.totals[:, indices],
                  self.square_totals[:, indices])
         return out
+
+
+def _stack_of_grids(grids: np.ndarray, scale: np.ndarray) -> GridStack:
+    stack = GridStack.__new__(GridStack)
+    stack._of_grids(grids, scale)
+    return stack
 
 
 def shifted(grid: LayoutGrid, shift: int) -> LayoutGrid:

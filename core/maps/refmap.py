@@ -243,30 +243,22 @@ class ReferenceMap:
         if self.projection is not None:
             return self._projected_evidence(indices)
         h, w = self.grid
-        frame_slots, frame_entries = a["frame_slots"], a["frame_entries"]
-        keys, counts, norms, channels, values = [], [], [], [], []
-        for c, index in enumerate(indices):
-            lo, hi = int(frame_slots[index]), int(frame_slots[index + 1])
-            keys.append(np.asarray(a["slot_locations"][lo:hi], dtype=np.int64) + c * h * w)
-            counts.append(a["slot_counts"][lo:hi])
-            norms.append(a["slot_norms"][lo:hi])
-            e0, e1 = int(frame_entries[index]), int(frame_entries[index + 1])
-            channels.append(a["slot_channels"][e0:e1])
-            values.append(a["slot_values"][e0:e1])
-        def joined(parts: list[np.ndarray], dtype: type) -> np.ndarray:
-            return np.concatenate(parts).astype(dtype) if parts else np.zeros(0, dtype)
-
-        stored = joined(values, np.float32)
+        frame_slots, frame_entries = np.asarray(a["frame_slots"]), np.asarray(a["frame_entries"])
+        lo, hi = frame_slots[indices], frame_slots[indices + 1]
+        e0, e1 = frame_entries[indices], frame_entries[indices + 1]
+        frame = np.repeat(np.arange(len(indices), dtype=np.int64), hi - lo)
+        stored = _runs(a["slot_values"], e0, e1).astype(np.float32)
+        counts = _runs(a["slot_counts"], lo, hi).astype(np.int64)
         if self.quantisation is not None:
             stored = (stored - self.quantisation.zero_point) * self.quantisation.scale
         return KeypointEvidence(
             keypoints=np.asarray(a["keypoints"][indices], dtype=np.int32),
             labels=np.asarray(a["labels"][indices]),
-            slot_keys=joined(keys, np.int64),
-            slot_offsets=np.concatenate([[0], np.cumsum(joined(counts, np.int64))]).astype(np.int64),
-            channels=joined(channels, np.int32),
+            slot_keys=_runs(a["slot_locations"], lo, hi).astype(np.int64) + frame * h * w,
+            slot_offsets=np.concatenate([[0], np.cumsum(counts)]).astype(np.int64),
+            channels=_runs(a["slot_channels"], e0, e1).astype(np.int32),
             values=stored.astype(np.float32),
-            slot_norms=joined(norms, np.float32),
+            slot_norms=_runs(a["slot_norms"], lo, hi).astype(np.float32),
             grid=(h, w),
             feature_dim=self.feature_dim,
         )

@@ -13,14 +13,17 @@ frame stands out from the rest of the map. Lower is better, like every single-fr
 from __future__ import annotations
 
 import time
-from concurrent.futures import Executor, Future
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..layout.compare import Alignment, GridStack, aligned, refined, similarities
 from ..layout.grid import LayoutGrid
 from .scores import MapScores
+
+if TYPE_CHECKING:
+    from .comparers import Comparer, PendingComparison
 
 EVERY_FRAME_MAX = 20000
 """Maps up to this many frames compare the layout with every map frame; larger ones where they are asked."""
@@ -40,7 +43,7 @@ class LayoutComparison:
         self.views = (grid, grid.turned())
         self.maps, self.weights, self.shifts, self.min_cells, self.turns = maps, weights, shifts, min_cells, turns
         self._every: np.ndarray | None = None
-        self._future: Future[np.ndarray] | None = None
+        self._future: PendingComparison | None = None
         self.seconds = 0.0
         """The comparisons took this long (on their thread, where :meth:`start` put them on one)."""
 
@@ -48,17 +51,21 @@ class LayoutComparison:
         """The scores under heading ``index`` (0: as the grid lies, 1: turned)."""
         return LayoutScores(self, index)
 
-    def start(self, worker: Executor) -> None:
-        """Compare with every map frame on ``worker`` (another thread) while the caller goes on (LoST-X verifies);
-        :meth:`every` then waits for it."""
-        self._future = worker.submit(self._compare, self.maps, (0, 1))
+    def start(self, comparer: Comparer) -> None:
+        """Compare with every map frame on ``comparer`` (another thread or process, :mod:`.comparers`) while the
+        caller goes on (LoST-X verifies); :meth:`every` then waits for it."""
+        self._future = comparer.submit(self)
+
+    def compute(self) -> np.ndarray:
+        """(2, N) both headings' similarity with every map frame, computed here."""
+        return self._compare(self.maps, (0, 1))
 
     def every(self) -> np.ndarray:
         """(2, N) both headings' similarity with every map frame."""
         if self._every is None and self._future is not None:
             self._every = self._future.result()
         if self._every is None:
-            self._every = self._compare(self.maps, (0, 1))
+            self._every = self.compute()
         return self._every
 
     def at(self, refs: np.ndarray, heading: int) -> np.ndarray:

@@ -7,7 +7,6 @@ import dataclasses
 import os
 import time
 import warnings
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -27,7 +26,9 @@ from ..layout.classes import LayoutClasses
 from ..layout.describer import FramePlacer, LiveLayout
 from ..layout.grid import LayoutGrid
 from ..maps.refmap import ReferenceMap
+from . import comparers
 from .combined import EVERY_FRAME_MAX, CombinedScores, LayoutComparison, LayoutScores, layout_vote
+from .comparers import Comparer, ComparisonProcess, ThreadComparer
 from .scores import MapScores
 from .search import CandidateSearch, QueryDistances
 from .verify import Correspondences, Verification, verify
@@ -208,7 +209,7 @@ class PlaceMatcher:
         self.backbone: Backbone | None = self.describer.backbone if isinstance(self.describer, LostDescriber) else None
         self.last_evidence: KeypointEvidence | None = None
         """The latest LoST query's keypoint evidence (to verify further candidates against)."""
-        self._worker: ThreadPoolExecutor | None = None
+        self._worker: Comparer | None = None
         self._worker_pid = 0
         self._started: tuple[LayoutGrid, LayoutComparison, int] | None = None
         """The grid of the frame :meth:`match` describes, its comparison with the map (started while the frame's
@@ -462,15 +463,17 @@ class PlaceMatcher:
             timings["combine"] = time.perf_counter() - t2
         return FrameMatch(answers["same"], answers["opposite"], vote)
 
-    def _pool(self) -> ThreadPoolExecutor:
-        """The thread that compares a frame's layout with the map while LoST-X searches and verifies (numpy
-        leaves the interpreter for both: on two cores or more they overlap). One for the matcher's life (a thread
-        started per frame costs 0.5 ms of the frame), and a new one in a forked child, which the parent's
-        thread did not follow."""
-        if self._worker is None or self._worker_pid != os.getpid():
-            self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="lostx-layout")
-            self._worker_pid = os.getpid()
-        return self._worker
+    def _comparer(self, comparison: LayoutComparison) -> Comparer:
+        """Where this process's layout comparisons run beside LoST-X (:mod:`.comparers`): for the matcher's life, a
+        process of their own on a map from ``PROCESS_MIN_FRAMES`` frames (while it lives), else a thread; new ones
+        in a forked child, which the parent's thread and pipe do not serve."""
+        comparer = self._worker
+        if comparer is None or self._worker_pid != os.getpid() or not getattr(comparer, "alive", True):
+            large = comparison.maps.n >= comparers.PROCESS_MIN_FRAMES and (os.cpu_count() or 1) > 1
+            fresh = comparer is None or self._worker_pid != os.getpid()
+            comparer = ComparisonProcess(comparison) if large and fresh else ThreadComparer()
+            self._worker, self._worker_pid = comparer, os.getpid()
+        return comparer
 
     def _layout_comparison(self, grid: LayoutGrid | None) -> LayoutComparison | None:
         """The frame's layout comparison with the map, started on the layout thread where it compares every map
@@ -481,7 +484,7 @@ class PlaceMatcher:
         comparison = LayoutComparison(grid, self.map.layout_stack(), self._layout_weights, self._layout_shifts,
                                       cfg.min_cells, cfg.turns)
         if self.map.n_frames <= EVERY_FRAME_MAX:
-            comparison.start(self._pool())
+            comparison.start(self._comparer(comparison))
         return comparison
 
     def _comparison(self, grid: LayoutGrid | None) -> LayoutComparison | None:
