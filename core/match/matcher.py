@@ -213,7 +213,7 @@ class PlaceMatcher:
         self._worker_pid = 0
         self._started: tuple[LayoutGrid, LayoutComparison, int] | None = None
         """The grid of the frame :meth:`match` describes, its comparison with the map (started while the frame's
-        descriptor is computed) and the process whose layout thread runs it."""
+        descriptor is computed) and the process that started it."""
         self.layout_off: str | None = None
         """Why the layout takes no part (None while it does, or before a frame showed it cannot)."""
         self._placer: FramePlacer | None = None
@@ -476,8 +476,8 @@ class PlaceMatcher:
         return comparer
 
     def _layout_comparison(self, grid: LayoutGrid | None) -> LayoutComparison | None:
-        """The frame's layout comparison with the map, started on the layout thread where it compares every map
-        frame (None without a layout)."""
+        """The frame's layout comparison with the map, started beside LoST-X (:meth:`_comparer`) where it compares
+        every map frame (None without a layout)."""
         if grid is None or self._live is None:
             return None
         cfg = self.config.layout
@@ -489,7 +489,7 @@ class PlaceMatcher:
 
     def _comparison(self, grid: LayoutGrid | None) -> LayoutComparison | None:
         """The comparison of ``grid`` with the map: the one started when its frame was described (in this process:
-        a forked child has no thread running the parent's), or a new one."""
+        a forked child has no thread or process comparing for it), or a new one."""
         started, self._started = self._started, None
         if started is not None and started[0] is grid and started[2] == os.getpid():
             return started[1]
