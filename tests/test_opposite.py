@@ -11,6 +11,9 @@ import json
 import os
 import select
 import signal
+import subprocess
+import sys
+import warnings
 
 import numpy as np
 import pytest
@@ -226,7 +229,8 @@ def test_comparisons_in_a_process_of_their_own_give_the_threads_answers(scene, m
     frames = [dataclasses.replace(f, camera=None) for f in open_traverse(scene / "front").subset(range(10, 16))]
     in_process = PlaceMatcher(maps["rear"], Config(), mosaic)
     got = _matches(in_process, frames)
-    assert "lostx-layout-compare" in [p.name for p in multiprocessing.active_children()]
+    assert isinstance(in_process._worker, in_a_process.ComparisonProcess)
+    assert in_process._worker._process.poll() is None
     ahead = PlaceMatcher(maps["rear"], Config(), mosaic)
     described = [ahead.describe(f, compare=True) for f in frames]
     # The last one's comparison started when it was described; the first ones are not matched: their replies come
@@ -244,8 +248,9 @@ def test_comparisons_in_a_process_of_their_own_give_the_threads_answers(scene, m
 
 
 def test_matching_goes_on_when_the_comparison_process_dies(scene, maps, mosaic, in_a_process):
-    """Killed (out of memory, by a user), the comparison process is said to have ended, once; the frame waiting for
-    it is compared in the matcher's own process, the frames after it on a thread: the answers do not change."""
+    """The comparison process ignores Ctrl-C (its owner ends it). Killed (out of memory, by a user), it is said to
+    have ended, once; the frame waiting for it is compared in the matcher's own process, the frames after it on a
+    thread: the answers do not change."""
     from lostx.core.match.matcher import PlaceMatcher
 
     frames = [dataclasses.replace(f, camera=None) for f in open_traverse(scene / "front").subset(range(10, 16))]
@@ -255,12 +260,45 @@ def test_matching_goes_on_when_the_comparison_process_dies(scene, maps, mosaic, 
     matcher = PlaceMatcher(maps["rear"], Config(), mosaic)
     got = _matches(matcher, frames[:2])
     process = matcher._worker._process  # type: ignore[union-attr]
+    os.kill(process.pid, signal.SIGINT)  # Ctrl-C in the terminal reaches it too: its owner ends it, not Ctrl-C
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", in_a_process.ComparisonWarning)
+        got += _matches(matcher, frames[2:3])
+    assert process.poll() is None
     process.kill()
-    process.join(5)
+    process.wait(5)
     with pytest.warns(in_a_process.ComparisonWarning, match="comparison process ended") as caught:
-        got += _matches(matcher, frames[2:])
+        got += _matches(matcher, frames[3:])
     assert len(caught) == 1
     assert isinstance(matcher._worker, in_a_process.ThreadComparer)
     for mine, theirs in zip(got, expected):
         for a, b in zip(mine, theirs):
             assert np.array_equal(a, b)
+
+
+SCRIPT = """
+import sys
+print("the script's top level ran", flush=True)
+from lostx.core import Config, ReferenceMap, load_backbone
+from lostx.core.match import comparers
+from lostx.core.match.matcher import PlaceMatcher
+from lostx.replay.dataset import open_traverse
+comparers.PROCESS_MIN_FRAMES = 0
+matcher = PlaceMatcher(ReferenceMap.open(sys.argv[1]), Config(), load_backbone())
+for frame in open_traverse(sys.argv[2]).subset(range(10, 12)):
+    match = matcher.match(frame)
+print("compared in", type(matcher._worker).__name__, int(match["opposite"].candidates[0]), flush=True)
+"""
+
+
+def test_a_script_without_a_main_guard_is_not_run_again_by_the_comparison_process(tmp_path, scene, maps):
+    """Users write quick scripts with no ``if __name__ == "__main__"`` guard. The comparison process is a fresh
+    interpreter running lostx's own module: the script's top level runs once, and the comparisons run there."""
+    script = tmp_path / "localize.py"
+    script.write_text(SCRIPT)
+    done = subprocess.run([sys.executable, "-W", "error::UserWarning", str(script), str(maps["rear"].path),
+                           str(scene / "front")], capture_output=True, text=True, timeout=300, cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    lines = done.stdout.splitlines()
+    assert lines.count("the script's top level ran") == 1, done.stdout
+    assert lines[-1].startswith("compared in ComparisonProcess"), done.stdout

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
 
@@ -22,15 +22,24 @@ from ..layout.compare import Alignment, GridStack, aligned, refined, similaritie
 from ..layout.grid import LayoutGrid
 from .scores import MapScores
 
-if TYPE_CHECKING:
-    from .comparers import Comparer, PendingComparison
-
 EVERY_FRAME_MAX = 20000
 """Maps up to this many frames compare the layout with every map frame; larger ones where they are asked."""
 SAMPLE = 512
 """Map frames (evenly spaced) whose scores give a larger map's means and standard deviations."""
 REFINE = 64
 """The map frames most similar to a query as the grids lie that are compared again shifted sideways."""
+
+
+class PendingComparison(Protocol):
+    def result(self) -> np.ndarray:
+        """(2, N) both headings' similarity with every map frame (waiting for it)."""
+
+
+class Comparer(Protocol):
+    """Where comparisons run beside the caller (:mod:`.comparers`)."""
+
+    def submit(self, comparison: LayoutComparison) -> PendingComparison:
+        """Start ``comparison`` with every map frame, under both headings."""
 
 
 class LayoutComparison:

@@ -3,25 +3,27 @@ thread, or in a process of its own that holds a copy of the map's layout grids.
 
 Both compute the same numbers with the same code (:meth:`LayoutComparison.compute`). A thread shares the
 interpreter with the verification beside it, and each slows the other (on the nuScenes frames against a
-1,000-frame map: verification 1.8 ms alone, 4.5 ms beside the comparison on a thread, 3.0 ms beside it in a
+1,000-frame map: verification 1.8 ms alone, 4.2 ms beside the comparison on a thread, 2.9 ms beside it in a
 process), so maps large enough for the comparison to take milliseconds compare in a process; small maps, where it
 takes a fraction of a millisecond, on a thread.
 """
 
 from __future__ import annotations
 
-import multiprocessing
 import os
+import signal
+import socket
+import subprocess
+import sys
 import warnings
 import weakref
 from concurrent.futures import Future, ThreadPoolExecutor
 from multiprocessing.connection import Connection
-from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
-if TYPE_CHECKING:
-    from .combined import LayoutComparison
+from ..layout.grid import LayoutGrid
+from .combined import LayoutComparison
 
 PROCESS_MIN_FRAMES = 200
 """Maps from this many frames compare in a process of their own: there a comparison takes about a millisecond or
@@ -32,17 +34,7 @@ comparison whose reply was dropped is computed where it is asked for."""
 
 
 class ComparisonWarning(UserWarning):
-    """The layout's comparison process ended; comparisons go on in the matcher's own process."""
-
-
-class PendingComparison(Protocol):
-    def result(self) -> np.ndarray:
-        """(2, N) both headings' similarity with every map frame (waiting for it)."""
-
-
-class Comparer(Protocol):
-    def submit(self, comparison: LayoutComparison) -> PendingComparison:
-        """Start ``comparison`` with every map frame, under both headings."""
+    """The layout's comparison process ended, or could not start; comparisons go on in the matcher's own process."""
 
 
 class ThreadComparer:
@@ -57,19 +49,31 @@ class ThreadComparer:
 
 
 class ComparisonProcess:
-    """Comparisons in a process of its own, started (``spawn``: safe beside the caller's threads) with a copy of the
-    map's layout grids and the comparison's settings; a frame's grid goes over a pipe, its scores come back.
+    """Comparisons in a process of its own, started with a copy of the map's layout grids and the comparison's
+    settings; a frame's grid goes over a socket, its scores come back.
+
+    The process is a fresh interpreter running this module (not a fork of the caller, whose threads and sockets
+    it must not share, nor multiprocessing's ``spawn``, which would run the caller's own script again in it where
+    that has no ``if __name__ == "__main__"`` guard). It ignores Ctrl-C: it ends when its owner closes the socket
+    (or is garbage-collected, or exits).
 
     Should the process end (killed, out of memory), the comparisons go on in the caller's process: said once with a
     :class:`ComparisonWarning`, and :attr:`alive` turns False so that the owner can use a thread from then on."""
 
     def __init__(self, comparison: LayoutComparison) -> None:
-        """Started with the map grids and settings of ``comparison`` (those of every comparison it is given)."""
-        context = multiprocessing.get_context("spawn")
-        self._conn, theirs = context.Pipe()
-        self._process = context.Process(target=_serve, args=(theirs,), name="lostx-layout-compare", daemon=True)
-        self._process.start()
-        theirs.close()
+        """Started with the map grids and settings of ``comparison`` (those of every comparison it is given).
+        Raises OSError where no process can be started."""
+        ours, theirs = socket.socketpair()
+        try:
+            self._process = subprocess.Popen([sys.executable, "-m", __name__, str(theirs.fileno())],
+                                             pass_fds=(theirs.fileno(),), stdin=subprocess.DEVNULL,
+                                             env={**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, sys.path))})
+        except BaseException:
+            ours.close()
+            raise
+        finally:
+            theirs.close()
+        self._conn = Connection(ours.detach())
         self._sent = 0
         self._last = -1
         """The latest request replied to (replies come in the order of the requests)."""
@@ -114,9 +118,12 @@ class ComparisonProcess:
 
     def _ended(self, exc: BaseException) -> None:
         self.alive = False
-        self._process.join(timeout=1.0)
-        warnings.warn(f"the layout's comparison process ended ({self._process.exitcode=}, {exc!r}); comparing in "
-                      f"this process from now on", ComparisonWarning, stacklevel=4)
+        try:
+            code = self._process.wait(timeout=1.0)
+        except subprocess.TimeoutExpired:
+            code = None
+        warnings.warn(f"the layout's comparison process ended (exit code {code}, {exc!r}); comparing in this "
+                      f"process from now on", ComparisonWarning, stacklevel=4)
         self._finalizer()
 
 
@@ -138,10 +145,7 @@ class _Reply:
 
 def _serve(conn: Connection) -> None:
     """The comparison process: the map's grids and the settings first, then one frame's grid at a time, each
-    answered with (request, scores, seconds) until the pipe closes."""
-    from ..layout.grid import LayoutGrid
-    from .combined import LayoutComparison
-
+    answered with (request, scores, seconds) until the socket closes."""
     try:
         maps, weights, shifts, min_cells, turns = conn.recv()
         while True:
@@ -152,16 +156,22 @@ def _serve(conn: Connection) -> None:
             except Exception:  # noqa: BLE001 (the caller computes it again, and sees the error itself)
                 scores = None
             conn.send((request, scores, comparison.seconds))
-    except (EOFError, OSError, KeyboardInterrupt):
+    except (EOFError, OSError):
         return
 
 
-def _stop(conn: Connection, process: multiprocessing.process.BaseProcess, owner: int) -> None:
-    """Close the pipe (the process then returns) and reap it (in the process that started it: a forked child
-    holds a copy of the pipe, not the process)."""
+def _stop(conn: Connection, process: subprocess.Popen, owner: int) -> None:
+    """Close the socket (the process then returns) and reap it (in the process that started it: a forked child
+    holds a copy of the socket, not the process)."""
     conn.close()
     if os.getpid() == owner:
-        process.join(timeout=2.0)
-        if process.is_alive():
+        try:
+            process.wait(timeout=2.0)
+        except subprocess.TimeoutExpired:
             process.kill()
-            process.join(timeout=1.0)
+            process.wait(timeout=1.0)
+
+
+if __name__ == "__main__":
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    _serve(Connection(int(sys.argv[1])))

@@ -27,8 +27,8 @@ from ..layout.describer import FramePlacer, LiveLayout
 from ..layout.grid import LayoutGrid
 from ..maps.refmap import ReferenceMap
 from . import comparers
-from .combined import EVERY_FRAME_MAX, CombinedScores, LayoutComparison, LayoutScores, layout_vote
-from .comparers import Comparer, ComparisonProcess, ThreadComparer
+from .combined import EVERY_FRAME_MAX, CombinedScores, Comparer, LayoutComparison, LayoutScores, layout_vote
+from .comparers import ComparisonProcess, ComparisonWarning, ThreadComparer
 from .scores import MapScores
 from .search import CandidateSearch, QueryDistances
 from .verify import Correspondences, Verification, verify
@@ -471,7 +471,13 @@ class PlaceMatcher:
         if comparer is None or self._worker_pid != os.getpid() or not getattr(comparer, "alive", True):
             large = comparison.maps.n >= comparers.PROCESS_MIN_FRAMES and (os.cpu_count() or 1) > 1
             fresh = comparer is None or self._worker_pid != os.getpid()
-            comparer = ComparisonProcess(comparison) if large and fresh else ThreadComparer()
+            comparer = ThreadComparer()
+            if large and fresh:
+                try:
+                    comparer = ComparisonProcess(comparison)
+                except OSError as exc:
+                    warnings.warn(f"the layout's comparison process could not start ({exc}); comparing on a thread",
+                                  ComparisonWarning, stacklevel=4)
             self._worker, self._worker_pid = comparer, os.getpid()
         return comparer
 
