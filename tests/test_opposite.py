@@ -222,8 +222,6 @@ def test_comparisons_in_a_process_of_their_own_give_the_threads_answers(scene, m
     """A large map's layout comparisons run in a process that holds a copy of its grids (so that they do not share
     the interpreter with verification): the same candidates and scores, to the bit, as on a thread, for frames
     matched one by one and for descriptions made ahead and matched later (their replies kept apart)."""
-    import multiprocessing
-
     from lostx.core.match.matcher import PlaceMatcher
 
     frames = [dataclasses.replace(f, camera=None) for f in open_traverse(scene / "front").subset(range(10, 16))]
