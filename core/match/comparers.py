@@ -83,6 +83,12 @@ class ComparisonProcess:
         self._send((comparison.maps, comparison.weights, comparison.shifts, comparison.min_cells, comparison.turns))
 
     def submit(self, comparison: LayoutComparison) -> _Reply:
+        # Replies not yet asked for are read first: a process blocked writing them would not read this request.
+        try:
+            while self.alive and self._conn.poll():
+                self._receive()
+        except (OSError, EOFError) as exc:
+            self._ended(exc)
         request = self._sent
         self._sent += 1
         grid = comparison.views[0]
@@ -104,17 +110,20 @@ class ComparisonProcess:
     def _reply(self, request: int) -> tuple[np.ndarray | None, float] | None:
         """The process's reply to ``request``: (scores, seconds), scores None where it failed; None where there is
         none to wait for (the process ended, or the reply was dropped unasked for)."""
-        while self.alive and request > self._last:
-            try:
-                got, scores, seconds = self._conn.recv()
-            except (OSError, EOFError) as exc:
-                self._ended(exc)
-                break
-            self._last = got
-            self._replies[got] = (scores, seconds)
-            for old in [r for r in self._replies if r < got - KEPT_REPLIES]:
-                del self._replies[old]
+        try:
+            while self.alive and request > self._last:
+                self._receive()
+        except (OSError, EOFError) as exc:
+            self._ended(exc)
         return self._replies.pop(request, None)
+
+    def _receive(self) -> None:
+        """One reply, kept until asked for (the oldest of those never asked for dropped)."""
+        got, scores, seconds = self._conn.recv()
+        self._last = got
+        self._replies[got] = (scores, seconds)
+        for old in [r for r in self._replies if r < got - KEPT_REPLIES]:
+            del self._replies[old]
 
     def _ended(self, exc: BaseException) -> None:
         self.alive = False
