@@ -54,7 +54,7 @@ class LayoutComparison:
         self._every: np.ndarray | None = None
         self._future: PendingComparison | None = None
         self.seconds = 0.0
-        """The comparisons took this long (on their thread, where :meth:`start` put them on one)."""
+        """The comparisons took this long (on the thread or in the process :meth:`start` handed them to)."""
 
     def heading(self, index: int) -> LayoutScores:
         """The scores under heading ``index`` (0: as the grid lies, 1: turned)."""

@@ -63,6 +63,8 @@ class ComparisonProcess:
     def __init__(self, comparison: LayoutComparison) -> None:
         """Started with the map grids and settings of ``comparison`` (those of every comparison it is given).
         Raises OSError where no process can be started."""
+        if not sys.executable:
+            raise OSError("this interpreter does not know its own executable")
         ours, theirs = socket.socketpair()
         try:
             self._process = subprocess.Popen([sys.executable, "-m", __name__, str(theirs.fileno())],

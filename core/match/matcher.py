@@ -466,7 +466,7 @@ class PlaceMatcher:
     def _comparer(self, comparison: LayoutComparison) -> Comparer:
         """Where this process's layout comparisons run beside LoST-X (:mod:`.comparers`): for the matcher's life, a
         process of their own on a map from ``PROCESS_MIN_FRAMES`` frames (while it lives), else a thread; new ones
-        in a forked child, which the parent's thread and pipe do not serve."""
+        in a forked child, which the parent's thread and socket do not serve."""
         comparer = self._worker
         if comparer is None or self._worker_pid != os.getpid() or not getattr(comparer, "alive", True):
             large = comparison.maps.n >= comparers.PROCESS_MIN_FRAMES and (os.cpu_count() or 1) > 1
