@@ -267,7 +267,7 @@ def test_matching_goes_on_when_the_comparison_process_dies(scene, maps, mosaic, 
     process.wait(5)
     with pytest.warns(in_a_process.ComparisonWarning, match="comparison process ended") as caught:
         got += _matches(matcher, frames[3:])
-    assert len(caught) == 1
+    assert sum(issubclass(w.category, in_a_process.ComparisonWarning) for w in caught) == 1
     assert isinstance(matcher._worker, in_a_process.ThreadComparer)
     for mine, theirs in zip(got, expected):
         for a, b in zip(mine, theirs):
