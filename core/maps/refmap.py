@@ -243,10 +243,9 @@ class ReferenceMap:
         if self.projection is not None:
             return self._projected_evidence(indices)
         h, w = self.grid
-        frame_slots, frame_entries = np.asarray(a["frame_slots"]), np.asarray(a["frame_entries"])
-        lo, hi = frame_slots[indices], frame_slots[indices + 1]
+        lo, hi, slot_keys = self._slots(indices)
+        frame_entries = np.asarray(a["frame_entries"])
         e0, e1 = frame_entries[indices], frame_entries[indices + 1]
-        frame = np.repeat(np.arange(len(indices), dtype=np.int64), hi - lo)
         stored = _runs(a["slot_values"], e0, e1).astype(np.float32)
         counts = _runs(a["slot_counts"], lo, hi).astype(np.int64)
         if self.quantisation is not None:
@@ -254,7 +253,7 @@ class ReferenceMap:
         return KeypointEvidence(
             keypoints=np.asarray(a["keypoints"][indices], dtype=np.int32),
             labels=np.asarray(a["labels"][indices]),
-            slot_keys=_runs(a["slot_locations"], lo, hi).astype(np.int64) + frame * h * w,
+            slot_keys=slot_keys,
             slot_offsets=np.concatenate([[0], np.cumsum(counts)]).astype(np.int64),
             channels=_runs(a["slot_channels"], e0, e1).astype(np.int32),
             values=stored.astype(np.float32),
@@ -263,22 +262,27 @@ class ReferenceMap:
             feature_dim=self.feature_dim,
         )
 
+    def _slots(self, indices: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The frames ``indices``' runs of slots (their starts and ends in the slot arrays) and the slots' keys:
+        their grid locations, the c-th frame's offset by c grids."""
+        frame_slots = np.asarray(self._arrays["frame_slots"])
+        lo, hi = frame_slots[indices], frame_slots[indices + 1]
+        h, w = self.grid
+        frame = np.repeat(np.arange(len(indices), dtype=np.int64), hi - lo)
+        return lo, hi, _runs(self._arrays["slot_locations"], lo, hi).astype(np.int64) + frame * h * w
 
     def _projected_evidence(self, indices: np.ndarray) -> KeypointEvidence:
         a = self._arrays
         h, w = self.grid
-        frame_slots = np.asarray(a["frame_slots"])
-        lo, hi = frame_slots[indices], frame_slots[indices + 1]
-        counts = hi - lo
-        frame = np.repeat(np.arange(len(indices), dtype=np.int64), counts)
+        lo, hi, slot_keys = self._slots(indices)
         return KeypointEvidence(
             keypoints=np.asarray(a["keypoints"][indices], dtype=np.int32),
             labels=np.asarray(a["labels"][indices]),
-            slot_keys=_runs(a["slot_locations"], lo, hi).astype(np.int64) + frame * h * w,
-            slot_offsets=np.zeros(len(frame) + 1, dtype=np.int64),
+            slot_keys=slot_keys,
+            slot_offsets=np.zeros(len(slot_keys) + 1, dtype=np.int64),
             channels=np.zeros(0, np.int32),
             values=np.zeros(0, np.float32),
-            slot_norms=np.ones(len(frame), np.float32),
+            slot_norms=np.ones(len(slot_keys), np.float32),
             grid=(h, w),
             feature_dim=self.feature_dim,
             reduced=half_to_single(_runs(a["slot_projected"], lo, hi)),
