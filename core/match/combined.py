@@ -38,6 +38,9 @@ class PendingComparison(Protocol):
 class Comparer(Protocol):
     """Where comparisons run beside the caller (:mod:`.comparers`)."""
 
+    alive: bool
+    """Whether it still compares where it was set up to (else its comparisons are computed where asked for)."""
+
     def submit(self, comparison: LayoutComparison) -> PendingComparison:
         """Start ``comparison`` with every map frame, under both headings."""
 

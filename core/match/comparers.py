@@ -41,6 +41,8 @@ class ThreadComparer:
     """Comparisons on one thread beside the caller's (one for the comparer's life: a thread started per frame
     costs 0.5 ms of the frame)."""
 
+    alive = True
+
     def __init__(self) -> None:
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="lostx-layout")
 

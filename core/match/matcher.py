@@ -467,19 +467,18 @@ class PlaceMatcher:
         """Where this process's layout comparisons run beside LoST-X (:mod:`.comparers`): for the matcher's life, a
         process of their own on a map from ``PROCESS_MIN_FRAMES`` frames (while it lives), else a thread; new ones
         in a forked child, which the parent's thread and socket do not serve."""
-        comparer = self._worker
-        if comparer is None or self._worker_pid != os.getpid() or not getattr(comparer, "alive", True):
-            large = comparison.maps.n >= comparers.PROCESS_MIN_FRAMES and (os.cpu_count() or 1) > 1
-            fresh = comparer is None or self._worker_pid != os.getpid()
-            comparer = ThreadComparer()
-            if large and fresh:
+        fresh = self._worker is None or self._worker_pid != os.getpid()
+        if fresh or not self._worker.alive:  # type: ignore[union-attr]
+            # A process only for a fresh matcher (or fork): once one has ended, a thread.
+            comparer: Comparer = ThreadComparer()
+            if fresh and comparison.maps.n >= comparers.PROCESS_MIN_FRAMES and (os.cpu_count() or 1) > 1:
                 try:
                     comparer = ComparisonProcess(comparison)
                 except OSError as exc:
                     warnings.warn(f"the layout's comparison process could not start ({exc}); comparing on a thread",
                                   ComparisonWarning, stacklevel=4)
             self._worker, self._worker_pid = comparer, os.getpid()
-        return comparer
+        return self._worker  # type: ignore[return-value]
 
     def _layout_comparison(self, grid: LayoutGrid | None) -> LayoutComparison | None:
         """The frame's layout comparison with the map, started beside LoST-X (:meth:`_comparer`) where it compares
