@@ -200,9 +200,10 @@ def test_frames_are_gathered_where_the_motion_puts_them():
     assert rows == 20 and cols == 15
 
 
-def test_frames_gathered_together_land_as_each_frame_alone(rng):
-    """All frames' points moved and counted in one pass: the same sums, to the bit, as each frame's points moved
-    by its own pose and counted in turn."""
+def test_frames_gathered_land_where_each_pose_puts_them(rng):
+    """Each frame's points moved by its own pose and counted by kind and cell, the frames' counts summed in turn:
+    the same sums, to the bit, as the rotation and binning written out by hand (an empty frame and a one-point
+    frame among them)."""
     config = LayoutConfig()
     rows, cols = grid_shape(config)
     frames = [(rng.uniform([-10, -30], [70, 30], (n, 2)).astype(np.float32), rng.integers(0, 3, n).astype(np.int8),

@@ -95,27 +95,21 @@ def accumulate(frames: Sequence[FramePoints], poses: np.ndarray, current: np.nda
 def cell_weights(points: list[tuple[np.ndarray, np.ndarray, np.ndarray]], here: np.ndarray, kinds: int,
                  config: LayoutConfig) -> np.ndarray:
     """(kinds * A * X,) float64: the weights of each frame's points (xy, kind, weight) by kind and cell, the frames
-    standing at poses ``here``. All frames' points are moved and counted at once, then summed frame by frame (each
-    frame's in their order): the sums, to the bit, of each frame counted alone in turn."""
+    standing at poses ``here``, counted frame by frame and summed in that order."""
     rows, cols = grid_shape(config)
     size = kinds * rows * cols
-    count = [len(xy) for xy, _, _ in points]
-    if not sum(count):
-        return np.zeros(size)
-    # Each point with its frame's pose (the turn's cosine and sine taken once a frame) and its frame's bins.
-    pose = np.array([(x, y, np.cos(angle), np.sin(angle), f * size) for f, (x, y, angle) in enumerate(here)])
-    x0, y0, cos, sin, offset = np.repeat(pose, count, axis=0).T
-    u, v = np.concatenate([xy for xy, _, _ in points]).T.astype(np.float64)
     near = config.centre - config.length / 2.0
-    a = np.floor((x0 + cos * u - sin * v - near) / config.cell)
-    x = np.floor((config.width / 2.0 - (y0 + sin * u + cos * v)) / config.cell)
-    inside = (a >= 0) & (a < rows) & (x >= 0) & (x < cols)
-    kind = np.concatenate([k for _, k, _ in points]).astype(np.float64)
-    index = (offset + (kind * rows + a) * cols + x)[inside].astype(np.int64)
-    weight = np.concatenate([w for _, _, w in points])[inside]
     total = np.zeros(size)
-    for frame in np.bincount(index, weight, len(points) * size).reshape(len(points), size):
-        total += frame
+    # One frame at a time: its few thousand points' temporaries stay in cache (twice as fast as moving every
+    # frame's points at once).
+    for (xy, kind, weight), (x0, y0, angle) in zip(points, here):
+        u, v = xy.T.astype(np.float64)
+        cos, sin = np.cos(angle), np.sin(angle)
+        a = np.floor((x0 + cos * u - sin * v - near) / config.cell)
+        x = np.floor((config.width / 2.0 - (y0 + sin * u + cos * v)) / config.cell)
+        inside = (a >= 0) & (a < rows) & (x >= 0) & (x < cols)
+        index = ((kind.astype(np.float64) * rows + a) * cols + x)[inside].astype(np.int64)
+        total += np.bincount(index, weight[inside], size)
     return total
 
 
