@@ -546,6 +546,20 @@ def test_the_viewer_is_found_without_an_activated_environment(monkeypatch):
     assert found is not None and Path(found).is_file() and os.access(found, os.X_OK)
 
 
+def test_the_viewer_is_the_program_itself_not_pips_wrapper_in_an_activated_environment(monkeypatch, tmp_path):
+    """An activated environment puts pip's ``rerun`` wrapper first on PATH: a Python script that runs the program as
+    its child, which would outlive the wrapper when lostx stops it. The program itself is started."""
+    from lostx.viz.rerun_app import viewer_executable
+
+    wrapper = tmp_path / "rerun"
+    wrapper.write_text("#!/usr/bin/env python3\nimport subprocess, sys\nsys.exit(subprocess.call(['rerun-real']))\n")
+    wrapper.chmod(0o755)
+    monkeypatch.setenv("PATH", str(tmp_path))
+    found = viewer_executable()
+    assert found is not None and Path(found) != wrapper
+    assert not Path(found).read_bytes()[:2] == b"#!", f"{found} is a script"
+
+
 # -- geometry -------------------------------------------------------------------------------------------
 
 

@@ -37,24 +37,24 @@ class ViewerUnavailable(RuntimeError):
 
 
 def viewer_executable() -> str | None:
-    """The ``rerun`` program: on PATH, else the one the rerun-sdk wheel ships in ``rerun_cli``.
+    """The ``rerun`` program: the one the rerun-sdk wheel ships in ``rerun_cli`` (the viewer of the SDK's own
+    version), else one on PATH.
 
-    A virtual environment's ``bin`` is on PATH only when it is activated; ``.venv/bin/lostx
-    --viewer`` run without activating it should still find the viewer installed beside it.
+    Not PATH first: in an activated virtual environment ``rerun`` there is pip's Python wrapper, which runs the
+    wheel's program as a child of its own; stopping the wrapper leaves that child serving. Without the wheel's
+    program (a viewer installed apart), PATH's is used.
     """
-    found = shutil.which("rerun")
-    if found:
-        return found
     try:
         import rerun_cli
     except ImportError:
-        return None
-    folder = Path(rerun_cli.__file__).parent
-    suffix = ".exe" if sys.platform.startswith("win") else ""
-    for candidate in (folder / "Rerun.app" / "Contents" / "MacOS" / "Rerun", folder / f"rerun{suffix}"):
-        if candidate.is_file():
-            return str(candidate)
-    return None
+        rerun_cli = None
+    if rerun_cli is not None:
+        folder = Path(rerun_cli.__file__).parent
+        suffix = ".exe" if sys.platform.startswith("win") else ""
+        for candidate in (folder / "Rerun.app" / "Contents" / "MacOS" / "Rerun", folder / f"rerun{suffix}"):
+            if candidate.is_file():
+                return str(candidate)
+    return shutil.which("rerun")
 
 
 def no_display_reason(environ: dict[str, str] | None = None) -> str | None:
