@@ -3,12 +3,13 @@
 A 1,000-frame map is made of the 40 real nuScenes rear-camera frames (described with their layout, cycled, the
 descriptors jittered so the search is not degenerate); the 40 front-camera frames query it with the scene's ego
 poses as odometry. Per query frame: the network; everything after it (LoST descriptor, search, verification,
-placing the frame and gathering its layout grid, comparing it with every map frame under both headings, the
-sequence filter following the distance travelled, the tracker); and, beside the network, visual odometry on the
-same frames (what a source without odometry pays). The comparison runs in a process of its own (on a map of this
-size) from the moment the frame's grid is known, beside its descriptor, search and verification: "layout compare"
-is its own time there, "combine" what it added to the frame's (waiting for it, then ranking by both cues); "after
-the network" is the frame's wall-clock time less the network's.
+placing the frame and choosing the frames its layout grid gathers, gathering the grid and comparing it with every
+map frame under both headings, the sequence filter following the distance travelled, the tracker); and, beside the
+network, visual odometry on the same frames (what a source without odometry pays). The gathering and the comparison
+run in a process of its own (on a map of this size) from the moment the frame is placed, beside its descriptor,
+search and verification: "layout compare" is their own time there, "layout" choosing the frames, "combine" what the
+comparison added to the frame's (waiting for it, then ranking by both cues); "after the network" is the frame's
+wall-clock time less the network's.
 
     python benchmarks/bench_layout.py [--frames 1000] [--out benchmarks/results/layout.json]
 """

@@ -9,13 +9,16 @@ import threading
 import numpy as np
 import pytest
 
-from lostx.core.layout.classes import CHANNELS
+from lostx.core.config import LayoutConfig
+from lostx.core.layout.classes import CHANNELS, CONTACTS
 from lostx.core.layout.compare import GridStack
-from lostx.core.layout.grid import LayoutGrid
+from lostx.core.layout.describer import LiveLayout, Placed
+from lostx.core.layout.grid import LayoutGrid, accumulate, grid_shape
+from lostx.core.layout.projection import FramePoints
 from lostx.core.match.combined import LayoutComparison
 from lostx.core.match.comparers import ComparisonProcess, ThreadComparer
 
-SHAPE = (20, 15)
+SHAPE = grid_shape(LayoutConfig())
 
 
 @pytest.fixture(scope="module")
@@ -68,3 +71,64 @@ def test_a_thread_and_a_process_give_the_same_scores(stack):
     for a, b in zip(in_process, on_thread):
         assert np.array_equal(a, b)
         assert a.shape == (2, stack.n) and np.isfinite(a).all()
+
+
+def _frame(rng: np.random.Generator) -> FramePoints:
+    """A frame's road-plane points: rays of three kinds and contacts, ahead of the camera."""
+    n, m = rng.integers(200, 400), rng.integers(20, 60)
+    def ahead(k: int) -> np.ndarray:
+        return rng.uniform([2, -20], [45, 20], (k, 2)).astype(np.float32)
+
+    return FramePoints(ahead(n), rng.integers(0, 3, n).astype(np.int8), rng.uniform(1, 5, n).astype(np.float32),
+                       ahead(m), rng.integers(0, len(CONTACTS), m).astype(np.int8),
+                       rng.uniform(0.1, 2, m).astype(np.float32))
+
+
+def test_the_process_gathers_each_grid_from_the_frames_it_was_sent_once(stack, monkeypatch):
+    """Where the process gathers a live frame's grid, it is sent each frame of the stream once and keeps those the
+    stream keeps. Along a drive with changes of speed, a stop, a frame whose motion is unknown, a reset and grids
+    handed over ahead of their scores being read, every grid is gathered there (none here, where a failed reply
+    would be computed again) and is, with its scores, what gathering the same frames here gives, to the bit."""
+    rng = np.random.default_rng(5)
+    config = LayoutConfig()
+    live = LiveLayout(config)
+    steps = [2.0] * 12 + [0.4] * 20 + [0.0] * 15 + [3.5] * 10 + [1.0] * 12
+    unknown, reset = {25}, 45
+    x, placed = 0.0, []
+    for i, step in enumerate(steps):
+        x += step
+        placed.append(Placed(_frame(rng), np.array([x, 0.1 * np.sin(x / 9), 0.02 * np.cos(x / 7)]), x,
+                             known=i not in unknown))
+    gatherings = []
+    for i, frame in enumerate(placed):
+        if i == reset:
+            live.reset()
+        gatherings.append(live.add(frame))
+    expected = [accumulate(g.frames, g.poses, g.current, config) for g in gatherings]
+    weights = np.ones(len(CHANNELS))
+    comparisons = [LayoutComparison(g, stack, weights, 1, 25, (-2.0, 0.0, 2.0)) for g in gatherings]
+    process = ComparisonProcess(comparisons[0])
+    from lostx.core.layout import grid as grid_module
+
+    gathered_here = []
+    monkeypatch.setattr(grid_module, "accumulate", lambda *args: gathered_here.append(args) or accumulate(*args))
+    sent = 0
+    try:
+        for start in range(0, len(comparisons), 4):
+            # Four handed over before any is read, read newest first.
+            pending = [process.submit(c) for c in comparisons[start:start + 4]]
+            sent += len(pending)
+            got = [p.result() for p in reversed(pending)][::-1]
+            for k, scores in enumerate(got):
+                i = start + k
+                assert gatherings[i].gathered and gatherings[i].frames == ()
+                grid = gatherings[i].grid()
+                assert np.array_equal(grid.values, expected[i].values), i
+                assert np.array_equal(grid.mask, expected[i].mask), i
+                assert np.array_equal(scores, LayoutComparison(expected[i], stack, weights, 1, 25,
+                                                               (-2.0, 0.0, 2.0)).compute()), i
+            assert not gathered_here, f"grids gathered here, not in the process, by frame {start + 4}"
+        assert process.alive
+    finally:
+        process.close()
+    assert sent == len(placed)

@@ -241,7 +241,7 @@ def test_a_live_grid_gathers_its_distance_at_any_frame_rate(stream):
     else:
         at = list(np.arange(0.0, 30.0, 0.1))
     for x in at:
-        grid = live.add(Placed(_point(25.0, 0.0), np.array([x, 0.0, 0.0]), float(x)))
+        grid = live.add(Placed(_point(25.0, 0.0), np.array([x, 0.0, 0.0]), float(x))).grid()
     rows = np.flatnonzero(grid.mask.any(axis=1))
     assert rows.max() - rows.min() + 1 >= 11, rows
 
@@ -266,7 +266,7 @@ def test_the_same_stretch_from_its_two_ends_agrees_better_turned(scene, mosaic):
     front = _placed(open_traverse(scene / "front").subset(range(20)), mosaic, config)
     rear = _placed(open_traverse(scene / "rear").subset(range(8, 34)), mosaic, config)
     live = LiveLayout(config.layout)
-    queries = [live.add(p) for p in front]
+    queries = [live.add(p).grid() for p in front]
     pairs = [(i, i + 12 - 8) for i in range(6, 20, 2)]
     turned = as_is = 0
     margins = []
@@ -294,7 +294,7 @@ def test_turned_and_shifted_comparisons_with_a_maps_stored_grids_equal_each_pair
     stack = GridStack(*unpack_levels(np.stack([v for v, _ in stored]), np.stack([b for _, b in stored]), shape))
     maps = [unpack(v, b, shape) for v, b in stored]
     live = LiveLayout(config.layout)
-    queries = [live.add(p) for p in front][10::2]
+    queries = [live.add(p).grid() for p in front][10::2]
     for query in queries:
         comparison = combined.LayoutComparison(query, stack, WEIGHTS, shifts=1, min_cells=25, turns=(-2.0, 0.0, 2.0))
         scores = comparison.every()

@@ -14,6 +14,7 @@ at most ``max_frames`` of them, spread evenly over that distance.
 from __future__ import annotations
 
 import dataclasses
+import itertools
 from collections import deque
 from dataclasses import dataclass
 
@@ -24,7 +25,7 @@ from ..frame import Frame
 from ..geometry import CameraGeometry
 from ..motion.odometer import Odometer
 from .classes import ROAD, LayoutClasses
-from .grid import LayoutGrid, accumulate
+from .grid import Gathering, LayoutGrid, accumulate
 from .projection import FramePoints, GroundProjector
 
 
@@ -123,7 +124,9 @@ class LiveLayout:
 
     def __init__(self, config: LayoutConfig) -> None:
         self.config = config
-        self._recent: deque[Placed] = deque()
+        self._recent: deque[tuple[int, Placed]] = deque()
+        """The frames kept, each with its number in the stream."""
+        self._numbers = itertools.count()
         self._spacing = config.query_travel / (4 * config.max_frames)
         """Metres between the frames kept (but the newest): four to choose from for each one gathered."""
 
@@ -133,33 +136,35 @@ class LiveLayout:
     def state(self) -> dict:
         """The frames of the distance travelled just before, each with its evidence and pose, as plain values and
         arrays."""
-        return {"recent": [dataclasses.asdict(placed) for placed in self._recent]}
+        return {"recent": [dataclasses.asdict(placed) for _, placed in self._recent]}
 
     def restore(self, state: dict) -> None:
         """Continue from :meth:`state`."""
         self._recent = deque(
-            Placed(FramePoints(**p["points"]), np.asarray(p["pose"], dtype=np.float64), float(p["travelled"]),
-                   float(p["progress"]), np.asarray(p["step"], dtype=np.float64), bool(p["known"]))
+            (next(self._numbers),
+             Placed(FramePoints(**p["points"]), np.asarray(p["pose"], dtype=np.float64), float(p["travelled"]),
+                    float(p["progress"]), np.asarray(p["step"], dtype=np.float64), bool(p["known"])))
             for p in state["recent"])
 
-    def add(self, frame: Placed) -> LayoutGrid:
+    def add(self, frame: Placed) -> Gathering:
+        """The newest frame's grid, to be gathered (:class:`.grid.Gathering`)."""
         cfg = self.config
         if not frame.known:
             self._recent.clear()  # where it stood against the frames before is unknown: they cannot be gathered
-        if len(self._recent) > 1 and self._recent[-1].travelled - self._recent[-2].travelled < self._spacing:
+        if len(self._recent) > 1 and self._recent[-1][1].travelled - self._recent[-2][1].travelled < self._spacing:
             # The newest frame kept lies within the spacing of the one before it: the new frame takes its place, so
             # that the frames kept span ``query_travel`` at any frame rate, and a stop keeps the road before it.
             self._recent.pop()
-        self._recent.append(frame)
-        while self._recent and self._recent[0].travelled < frame.travelled - cfg.query_travel - 1e-9:
+        self._recent.append((next(self._numbers), frame))
+        while self._recent and self._recent[0][1].travelled < frame.travelled - cfg.query_travel - 1e-9:
             self._recent.popleft()
         while len(self._recent) > 4 * cfg.max_frames:
             self._recent.popleft()
-        travelled = np.array([p.travelled for p in self._recent])
-        chosen = spread(travelled, frame.travelled - cfg.query_travel, frame.travelled, cfg.max_frames,
-                        len(self._recent) - 1)
-        frames = [self._recent[i] for i in chosen]
-        return accumulate([f.points for f in frames], np.stack([f.pose for f in frames]), frame.pose, cfg)
+        travelled = np.array([p.travelled for _, p in self._recent])
+        chosen = [self._recent[i] for i in spread(travelled, frame.travelled - cfg.query_travel, frame.travelled,
+                                                  cfg.max_frames, len(self._recent) - 1)]
+        return Gathering(tuple(p.points for _, p in chosen), tuple(n for n, _ in chosen),
+                         tuple(n for n, _ in self._recent), np.stack([p.pose for _, p in chosen]), frame.pose, cfg)
 
 
 def map_grid(frames: list[Placed], index: int, config: LayoutConfig) -> LayoutGrid:

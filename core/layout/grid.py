@@ -14,7 +14,7 @@ the cells both grids observed. Values are smoothed with a Gaussian normalised by
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Sequence
 
 import cv2
@@ -90,6 +90,41 @@ def accumulate(frames: Sequence[FramePoints], poses: np.ndarray, current: np.nda
     values[2:] = np.minimum(np.log1p(contact), CONTACT_RANGE)
     values[:, ~mask] = 0.0
     return LayoutGrid(_smoothed(values, mask, config.blur / config.cell), mask)
+
+
+@dataclass
+class Gathering:
+    """A live frame's layout grid before it is gathered: the frames chosen for it, where each stood, and where the
+    camera stands now. Making one costs nothing; :meth:`grid` gathers it once, wherever it is first asked for (a
+    comparison process gathers it beside LoST-X from the frames it was sent, by their numbers)."""
+
+    frames: tuple[FramePoints, ...]
+    keys: tuple[int, ...]
+    """Each chosen frame's number in its stream (never given to another frame)."""
+    window: tuple[int, ...]
+    """The numbers of every frame the stream keeps now: those a later grid may gather."""
+    poses: np.ndarray
+    """(k, 3) where each chosen frame's camera stood, in the stream's odometry frame."""
+    current: np.ndarray
+    """(3,) where the camera stands now."""
+    config: LayoutConfig
+    _grid: LayoutGrid | None = field(default=None, init=False, repr=False, compare=False)
+
+    @property
+    def gathered(self) -> bool:
+        return self._grid is not None
+
+    def grid(self) -> LayoutGrid:
+        """The grid (gathered here the first time, unless it was gathered elsewhere and :meth:`received`)."""
+        if self._grid is None:
+            self.received(accumulate(self.frames, self.poses, self.current, self.config))
+        return self._grid  # type: ignore[return-value]
+
+    def received(self, grid: LayoutGrid) -> None:
+        """The grid, gathered elsewhere from the same frames (the same bits); the frames are let go."""
+        if self._grid is None:
+            self._grid = grid
+            self.frames = ()
 
 
 def cell_weights(points: list[tuple[np.ndarray, np.ndarray, np.ndarray]], here: np.ndarray, kinds: int,

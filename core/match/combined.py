@@ -19,7 +19,7 @@ from typing import Protocol
 import numpy as np
 
 from ..layout.compare import Alignment, GridStack, aligned, refined, similarities
-from ..layout.grid import LayoutGrid
+from ..layout.grid import Gathering, LayoutGrid
 from .scores import MapScores
 
 EVERY_FRAME_MAX = 20000
@@ -50,14 +50,25 @@ class LayoutComparison:
     map grid compared as it lies in one pass when first asked, the most similar ones again turned a few degrees
     and shifted sideways."""
 
-    def __init__(self, grid: LayoutGrid, maps: GridStack, weights: np.ndarray, shifts: int, min_cells: int,
-                 turns: tuple[float, ...] = (0.0,)) -> None:
-        self.views = (grid, grid.turned())
+    def __init__(self, grid: LayoutGrid | Gathering, maps: GridStack, weights: np.ndarray, shifts: int,
+                 min_cells: int, turns: tuple[float, ...] = (0.0,)) -> None:
+        self.source = grid
+        """The frame's grid, or the gathering that gives it (gathered where the comparison runs)."""
+        self._views: tuple[LayoutGrid, LayoutGrid] | None = None
         self.maps, self.weights, self.shifts, self.min_cells, self.turns = maps, weights, shifts, min_cells, turns
         self._every: np.ndarray | None = None
         self._future: PendingComparison | None = None
         self.seconds = 0.0
-        """The comparisons took this long (on the thread or in the process :meth:`start` handed them to)."""
+        """Gathering the grid (where it was not yet) and the comparisons took this long (on the thread or in the
+        process :meth:`start` handed them to)."""
+
+    @property
+    def views(self) -> tuple[LayoutGrid, LayoutGrid]:
+        """The frame's grid as it lies and turned 180 degrees."""
+        if self._views is None:
+            grid = self.source.grid() if isinstance(self.source, Gathering) else self.source
+            self._views = (grid, grid.turned())
+        return self._views
 
     def heading(self, index: int) -> LayoutScores:
         """The scores under heading ``index`` (0: as the grid lies, 1: turned)."""

@@ -1,5 +1,7 @@
 """Where a frame's layout comparison with the map runs while LoST-X searches and verifies the same frame: on a
-thread, or in a process of its own that holds a copy of the map's layout grids.
+thread, or in a process of its own that holds a copy of the map's layout grids. Where the frame's grid is not yet
+gathered (:class:`lostx.core.layout.grid.Gathering`), it is gathered there too: the process also keeps the frames
+its stream keeps, each sent to it once.
 
 Both compute the same numbers with the same code (:meth:`LayoutComparison.compute`). A thread shares the
 interpreter with the verification beside it, and each slows the other (on the nuScenes frames against a
@@ -15,6 +17,7 @@ import signal
 import socket
 import subprocess
 import sys
+import time
 import warnings
 import weakref
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -22,7 +25,8 @@ from multiprocessing.connection import Connection
 
 import numpy as np
 
-from ..layout.grid import LayoutGrid
+from ..layout.grid import Gathering, LayoutGrid, accumulate
+from ..layout.projection import FramePoints
 from .combined import LayoutComparison
 
 PROCESS_MIN_FRAMES = 200
@@ -52,7 +56,8 @@ class ThreadComparer:
 
 class ComparisonProcess:
     """Comparisons in a process of its own, started with a copy of the map's layout grids and the comparison's
-    settings; a frame's grid goes over a socket, its scores come back.
+    settings; a frame's grid (or the frames that gather it, those not sent before) goes over a socket, its scores
+    (and the grid it gathered) come back.
 
     The process is a fresh interpreter running this module (not a fork of the caller, whose threads and sockets
     it must not share, nor multiprocessing's ``spawn``, which would run the caller's own script again in it where
@@ -81,7 +86,9 @@ class ComparisonProcess:
         self._sent = 0
         self._last = -1
         """The latest request replied to (replies come in the order of the requests)."""
-        self._replies: dict[int, tuple[np.ndarray | None, float]] = {}
+        self._replies: dict[int, tuple[np.ndarray | None, float, tuple[np.ndarray, np.ndarray] | None]] = {}
+        self._held: set[int] = set()
+        """The numbers of the stream's frames the process holds (sent once each, let go as the stream does)."""
         self.alive = True
         self._finalizer = weakref.finalize(self, _stop, self._conn, self._process, os.getpid())
         self._send((comparison.maps, comparison.weights, comparison.shifts, comparison.min_cells, comparison.turns))
@@ -95,8 +102,16 @@ class ComparisonProcess:
             self._ended(exc)
         request = self._sent
         self._sent += 1
-        grid = comparison.views[0]
-        self._send((request, grid.values, grid.mask))
+        source = comparison.source
+        if isinstance(source, Gathering) and not source.gathered:
+            # The process gathers the grid: it is sent the chosen frames it does not hold yet, and which to keep.
+            new = {n: f for n, f in zip(source.keys, source.frames) if n not in self._held}
+            self._held = {n for n in source.window if n in self._held} | set(new)
+            self._send((request, "gather", (new, source.window, source.keys, source.poses, source.current,
+                                            source.config)))
+        else:
+            grid = comparison.views[0]
+            self._send((request, "grid", (grid.values, grid.mask)))
         return _Reply(self, request, comparison)
 
     def close(self) -> None:
@@ -111,9 +126,9 @@ class ComparisonProcess:
             except (OSError, ValueError) as exc:
                 self._ended(exc)
 
-    def _reply(self, request: int) -> tuple[np.ndarray | None, float] | None:
-        """The process's reply to ``request``: (scores, seconds), scores None where it failed; None where there is
-        none to wait for (the process ended, or the reply was dropped unasked for)."""
+    def _reply(self, request: int) -> tuple[np.ndarray | None, float, tuple[np.ndarray, np.ndarray] | None] | None:
+        """The process's reply to ``request``: (scores, seconds, the grid it gathered), scores None where it failed;
+        None where there is none to wait for (the process ended, or the reply was dropped unasked for)."""
         try:
             while self.alive and request > self._last:
                 self._receive()
@@ -123,9 +138,9 @@ class ComparisonProcess:
 
     def _receive(self) -> None:
         """One reply, kept until asked for (the oldest of those never asked for dropped)."""
-        got, scores, seconds = self._conn.recv()
+        got, scores, seconds, grid = self._conn.recv()
         self._last = got
-        self._replies[got] = (scores, seconds)
+        self._replies[got] = (scores, seconds, grid)
         for old in [r for r in self._replies if r < got - KEPT_REPLIES]:
             del self._replies[old]
 
@@ -151,24 +166,35 @@ class _Reply:
         reply = self.process._reply(self.request)
         if reply is None or reply[0] is None:
             return self.comparison.compute()
-        scores, seconds = reply
+        scores, seconds, grid = reply
+        if grid is not None and isinstance(self.comparison.source, Gathering):
+            self.comparison.source.received(LayoutGrid(*grid))
         self.comparison.seconds += seconds
         return scores
 
 
 def _serve(conn: Connection) -> None:
-    """The comparison process: the map's grids and the settings first, then one frame's grid at a time, each
-    answered with (request, scores, seconds) until the socket closes."""
+    """The comparison process: the map's grids and the settings first, then one frame at a time, its grid or what
+    gathers it, each answered with (request, scores, seconds, the grid it gathered) until the socket closes."""
     try:
         maps, weights, shifts, min_cells, turns = conn.recv()
+        frames: dict[int, FramePoints] = {}
         while True:
-            request, values, mask = conn.recv()
-            comparison = LayoutComparison(LayoutGrid(values, mask), maps, weights, shifts, min_cells, turns)
+            request, kind, body = conn.recv()
+            start = time.perf_counter()
+            gathered = None
             try:
-                scores: np.ndarray | None = comparison.compute()
+                if kind == "gather":
+                    new, window, keys, poses, current, config = body
+                    frames = {n: frames[n] for n in window if n in frames} | new
+                    grid = accumulate([frames[n] for n in keys], poses, current, config)
+                    gathered = (grid.values, grid.mask)
+                else:
+                    grid = LayoutGrid(*body)
+                scores: np.ndarray | None = LayoutComparison(grid, maps, weights, shifts, min_cells, turns).compute()
             except Exception:  # noqa: BLE001 (the caller computes it again, and sees the error itself)
-                scores = None
-            conn.send((request, scores, comparison.seconds))
+                scores, gathered = None, None
+            conn.send((request, scores, time.perf_counter() - start, gathered))
     except (EOFError, OSError):
         return
 

@@ -24,7 +24,7 @@ from ..frame import HEADINGS, Camera, Frame, Heading
 from ..images import check_frame
 from ..layout.classes import LayoutClasses
 from ..layout.describer import FramePlacer, LiveLayout
-from ..layout.grid import LayoutGrid
+from ..layout.grid import Gathering, LayoutGrid
 from ..maps.refmap import ReferenceMap
 from . import comparers
 from .combined import EVERY_FRAME_MAX, CombinedScores, Comparer, LayoutComparison, LayoutScores, layout_vote
@@ -51,8 +51,9 @@ class QueryDescription:
     """(h, w) grouped semantic labels."""
     timings: dict[str, float] = field(default_factory=dict)
     """Seconds: network, descriptor, layout, motion."""
-    layout: LayoutGrid | None = None
-    """The frame's layout grid (gathered over the distance just travelled), where the layout is on."""
+    layout: Gathering | None = None
+    """The frame's layout grid (gathered over the distance just travelled; :meth:`Gathering.grid`), where the layout
+    is on."""
     progress: float | None = None
     """Metres the stream has advanced along its camera's axis (lostx.core.motion), where its motion is known."""
 
@@ -311,9 +312,16 @@ class PlaceMatcher:
         t2 = time.perf_counter()
         timings = {"network": t1 - t0}
         layout, progress = self._place(frame, described.label_map, timings)
+        comparison = None
         if compare and layout is not None and self.config.verify.enabled:
             comparison = self._layout_comparison(layout)
             self._started = None if comparison is None else (layout, comparison, os.getpid())
+        if layout is not None and comparison is None:
+            # Not handed to a comparison (described ahead): gathered now, so that the description holds its grid, not
+            # its frames.
+            t = time.perf_counter()
+            layout.grid()
+            timings["layout"] += time.perf_counter() - t
         t3 = time.perf_counter()
         raw = describer.descriptor(described, self.means(described))
         timings["descriptor"] = (t2 - t1) + (time.perf_counter() - t3)
@@ -321,8 +329,8 @@ class PlaceMatcher:
                                 described.labels, timings, layout, progress)
 
     def _place(self, frame: Frame, label_map: np.ndarray | None,
-               timings: dict[str, float]) -> tuple[LayoutGrid | None, float | None]:
-        """The frame's layout grid and progress, where the layout is on and the frame allows it."""
+               timings: dict[str, float]) -> tuple[Gathering | None, float | None]:
+        """The frame's layout grid (to be gathered) and progress, where the layout is on and the frame allows it."""
         if self._placer is None or self._live is None:
             return None, None
         if frame.geometry is None:
@@ -339,10 +347,10 @@ class PlaceMatcher:
         if placed is None:
             self._layout_unavailable("the frames' motion is unknown (no odometry, and visual odometry is off)")
             return None, None
-        grid = self._live.add(placed)
+        gathering = self._live.add(placed)
         timings["motion"] = t1 - t0
         timings["layout"] = time.perf_counter() - t1
-        return grid, placed.progress if placed.known else None
+        return gathering, placed.progress if placed.known else None
 
     def _match_thumbnail(self, image: np.ndarray) -> FrameMatch:
         t0 = time.perf_counter()
@@ -412,7 +420,7 @@ class PlaceMatcher:
 
     def _search_and_verify(self, vector: np.ndarray, evidence: KeypointEvidence, labels: np.ndarray,
                            timings: dict[str, float], t0: float, removed: slice | None = None,
-                           layout: LayoutGrid | None = None) -> FrameMatch:
+                           layout: LayoutGrid | Gathering | None = None) -> FrameMatch:
         cfg = self.config.verify
         comparison = self._comparison(layout) if cfg.enabled else None
         distance_of = QueryDistances(self.search, vector)
@@ -480,7 +488,7 @@ class PlaceMatcher:
             self._worker, self._worker_pid = comparer, os.getpid()
         return self._worker  # type: ignore[return-value]
 
-    def _layout_comparison(self, grid: LayoutGrid | None) -> LayoutComparison | None:
+    def _layout_comparison(self, grid: LayoutGrid | Gathering | None) -> LayoutComparison | None:
         """The frame's layout comparison with the map, started beside LoST-X (:meth:`_comparer`) where it compares
         every map frame (None without a layout)."""
         if grid is None or self._live is None:
@@ -492,7 +500,7 @@ class PlaceMatcher:
             comparison.start(self._comparer(comparison))
         return comparison
 
-    def _comparison(self, grid: LayoutGrid | None) -> LayoutComparison | None:
+    def _comparison(self, grid: LayoutGrid | Gathering | None) -> LayoutComparison | None:
         """The comparison of ``grid`` with the map: the one started when its frame was described (in this process:
         a forked child has no thread or process comparing for it), or a new one."""
         started, self._started = self._started, None
