@@ -112,12 +112,19 @@ def test_the_process_gathers_each_grid_from_the_frames_it_was_sent_once(stack, m
 
     gathered_here = []
     monkeypatch.setattr(grid_module, "accumulate", lambda *args: gathered_here.append(args) or accumulate(*args))
-    sent = 0
+    sent: list[int] = []  # the numbers of the frames handed over, in order
+    send = process._send
+
+    def recorded(message: tuple) -> None:
+        if message[1] == "gather":
+            sent.extend(message[2][0])
+        send(message)
+
+    monkeypatch.setattr(process, "_send", recorded)
     try:
         for start in range(0, len(comparisons), 4):
             # Four handed over before any is read, read newest first.
             pending = [process.submit(c) for c in comparisons[start:start + 4]]
-            sent += len(pending)
             got = [p.result() for p in reversed(pending)][::-1]
             for k, scores in enumerate(got):
                 i = start + k
@@ -131,4 +138,5 @@ def test_the_process_gathers_each_grid_from_the_frames_it_was_sent_once(stack, m
         assert process.alive
     finally:
         process.close()
-    assert sent == len(placed)
+    gathered = {n for g in gatherings for n in g.keys}
+    assert sorted(sent) == sorted(gathered), "a frame sent twice, or one gathered that was never sent"

@@ -32,6 +32,9 @@ from .combined import LayoutComparison
 PROCESS_MIN_FRAMES = 200
 """Maps from this many frames compare in a process of their own: there a comparison takes about a millisecond or
 more, against the 0.1 ms of handing a grid over and the scores back."""
+Answer = tuple[np.ndarray | None, float, tuple[np.ndarray, np.ndarray] | None]
+"""The process's reply to a request: the scores (None where it failed), its seconds, and the grid it gathered
+(values, mask; None where it was sent one)."""
 KEPT_REPLIES = 16
 """Replies kept for comparisons not yet asked for (a frame described ahead); older ones are dropped, and a
 comparison whose reply was dropped is computed where it is asked for."""
@@ -86,7 +89,7 @@ class ComparisonProcess:
         self._sent = 0
         self._last = -1
         """The latest request replied to (replies come in the order of the requests)."""
-        self._replies: dict[int, tuple[np.ndarray | None, float, tuple[np.ndarray, np.ndarray] | None]] = {}
+        self._replies: dict[int, Answer] = {}
         self._held: set[int] = set()
         """The numbers of the stream's frames the process holds (sent once each, let go as the stream does)."""
         self.alive = True
@@ -126,9 +129,9 @@ class ComparisonProcess:
             except (OSError, ValueError) as exc:
                 self._ended(exc)
 
-    def _reply(self, request: int) -> tuple[np.ndarray | None, float, tuple[np.ndarray, np.ndarray] | None] | None:
-        """The process's reply to ``request``: (scores, seconds, the grid it gathered), scores None where it failed;
-        None where there is none to wait for (the process ended, or the reply was dropped unasked for)."""
+    def _reply(self, request: int) -> Answer | None:
+        """The process's reply to ``request``; None where there is none to wait for (the process ended, or the reply
+        was dropped unasked for)."""
         try:
             while self.alive and request > self._last:
                 self._receive()

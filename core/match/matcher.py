@@ -212,9 +212,9 @@ class PlaceMatcher:
         """The latest LoST query's keypoint evidence (to verify further candidates against)."""
         self._worker: Comparer | None = None
         self._worker_pid = 0
-        self._started: tuple[LayoutGrid, LayoutComparison, int] | None = None
-        """The grid of the frame :meth:`match` describes, its comparison with the map (started while the frame's
-        descriptor is computed) and the process that started it."""
+        self._started: tuple[Gathering, LayoutComparison, int] | None = None
+        """The grid (to be gathered) of the frame :meth:`match` describes, its comparison with the map (started while
+        the frame's descriptor is computed) and the process that started it."""
         self.layout_off: str | None = None
         """Why the layout takes no part (None while it does, or before a frame showed it cannot)."""
         self._placer: FramePlacer | None = None
