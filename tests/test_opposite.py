@@ -300,3 +300,21 @@ def test_a_script_without_a_main_guard_is_not_run_again_by_the_comparison_proces
     lines = done.stdout.splitlines()
     assert lines.count("the script's top level ran") == 1, done.stdout
     assert lines[-1].startswith("compared in ComparisonProcess"), done.stdout
+
+
+def test_an_evaluation_stores_its_queries_layout_and_reads_it_back(scene, maps, mosaic, tmp_path):
+    """`lostx eval` keeps each query's description (its gathered layout grid included) in its cache, and a second
+    run reads the same grids back."""
+    from lostx.core.layout.grid import Gathering
+    from lostx.core.match.matcher import PlaceMatcher
+    from lostx.evaluation.methods import query_descriptions
+
+    traverse = open_traverse(scene / "front").subset(range(6))
+    first = query_descriptions(traverse, PlaceMatcher(maps["rear"], Config(), mosaic), tmp_path, Config(), False)
+    again = query_descriptions(traverse, PlaceMatcher(maps["rear"], Config(), mosaic), tmp_path, Config(), False)
+    assert len(list(tmp_path.glob("queries-*.npz"))) == 1
+    for made, read in zip(first, again):
+        grid = made.layout.grid() if isinstance(made.layout, Gathering) else made.layout
+        assert grid.observed > 100
+        assert np.array_equal(read.layout.mask, grid.mask)
+        assert np.abs(read.layout.values - grid.values).max() <= 0.5 * 4.0 / 255 + 1e-6
