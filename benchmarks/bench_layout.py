@@ -28,7 +28,7 @@ import numpy as np
 from common import RESULTS, print_table, summary, write_json
 from lostx.core import Config, Localizer, LostDescriber, ReferenceMap, build_map, load_backbone
 from lostx.core.layout.classes import ROAD, LayoutClasses
-from lostx.core.layout.grid import pack
+from lostx.core.layout.grid import pack_both
 from lostx.core.maps.mapwriter import MapFrame, MapWriter
 from lostx.core.motion.visual import VisualOdometry
 from lostx.core.paths import data_dir
@@ -51,7 +51,8 @@ def cycled_map(out: Path, real: ReferenceMap, describer: LostDescriber, frames: 
             k = i % len(described)
             d = described[k]
             desc = describer.descriptor(d, d.means) + rng.normal(0, 0.01, d.means.size).astype(np.float32)
-            writer.add(MapFrame(f"{i:06d}.jpg", desc, d.evidence, d.appearance(), layout=pack(real.layout_grid(k)),
+            layout = pack_both(real.layout_grid(k), real.layout_grid(k, "opposite"))
+            writer.add(MapFrame(f"{i:06d}.jpg", desc, d.evidence, d.appearance(), layout=layout,
                                 step=steps[k] if k else steps[1]))
         writer.commit()
     return ReferenceMap.open(out)

@@ -19,6 +19,7 @@ import json
 import tempfile
 import warnings
 from pathlib import Path
+from unittest import mock
 
 import numpy as np
 
@@ -40,7 +41,17 @@ def variant(**sections: dict) -> Config:
     return config
 
 
+AS_SEEN = dataclasses.replace(Config(), layout=dataclasses.replace(Config().layout))
+"""The defaults, with the map's grids compared under the opposite heading as the map's camera saw them, turned 180
+degrees (as maps built before the other ends were stored are): told apart from the defaults by identity."""
+
 FAMILIES: dict[str, dict[str, Config]] = {
+    "ends": {
+        "other end's grid gathered on the map's route (default)": Config(),
+        "the map camera's grid turned 180 degrees": AS_SEEN,
+    },
+    "contrast": {f"contrast over {d:g} m{' (default)' if d == 60.0 else ''}":
+                 variant(sequence=dict(contrast_distance=d)) for d in (30.0, 60.0, 90.0)},
     "cues": {
         "LoST-X alone": variant(layout=dict(enabled="off")),
         "layout weight 1": variant(layout=dict(weight=1.0)),
@@ -104,6 +115,12 @@ class Study:
         return self._maps[key]
 
     def run(self, config: Config) -> dict[str, dict[str, list[int]]]:
+        if config is AS_SEEN:
+            with mock.patch.object(ReferenceMap, "stores_other_ends", new=property(lambda self: False)):
+                return self._run(config)
+        return self._run(config)
+
+    def _run(self, config: Config) -> dict[str, dict[str, list[int]]]:
         out = {}
         for setup, (map_camera, query_camera, reverse) in SETUPS.items():
             refmap = self.refmap(map_camera, config)

@@ -30,8 +30,8 @@ from .describe.thumbnail import ThumbnailDescriber
 from .errors import MapError
 from .frame import Frame
 from .layout.classes import LayoutClasses
-from .layout.describer import FramePlacer, Placed, map_grid
-from .layout.grid import LayoutGrid, pack
+from .layout.describer import FramePlacer, Placed, map_grids, route_reach
+from .layout.grid import LayoutGrid, pack_both
 from .localizer import calibrate
 from .maps.checkpoint import BuildCheckpoint, missing_ranges
 from .maps.format import BACKBONE_IDENTITY, MAP_VERSION, MapKind, backbone_dict
@@ -123,18 +123,20 @@ class _Held:
 def _windowed(
     frames: Iterable[Frame], describe: Callable[[np.ndarray], DescribedFrame], geometry: Geometry, window: int,
     emit_from: int = 0, placer: FramePlacer | None = None, layout: LayoutConfig | None = None,
-) -> Iterator[tuple[int, Frame, DescribedFrame, np.ndarray, Placed | None, LayoutGrid | None]]:
+) -> Iterator[tuple[int, Frame, DescribedFrame, np.ndarray, Placed | None,
+                    tuple[LayoutGrid, LayoutGrid] | None]]:
     """Yield each frame (from the ``emit_from``-th on; those before only lend their class means and layout)
     with its class means averaged over a centred window, clipped at the ends of ``frames``, and, with a
-    ``placer``, its placement and layout grid from the frames within ``layout.map_travel`` metres of it. Each
+    ``placer``, its placement and layout grids (:func:`map_grids`: as its camera and as the other end of its
+    stretch views it) from the frames within ``layout.map_travel`` metres of it and the route around it. Each
     image is fitted to the backbone by ``geometry`` for the camera its frame declares.
 
     Frames stream through: frame j is finished once frame j + window // 2 has been described and, for the
-    layout, once the frames held reach ``map_travel`` metres beyond it or ``2 * max_frames`` frames, so at
-    most that many frames are held at a time.
+    layout, once the route held reaches far enough beyond it for its other end (:func:`route_reach`) or
+    ``4 * max_frames`` frames, so at most that many frames are held at a time.
     """
     half = window // 2
-    reach = 2 * layout.max_frames if placer is not None and layout is not None else 0
+    reach = 4 * layout.max_frames if placer is not None and layout is not None else 0
     held: deque[_Held] = deque()
     done = emit_from
 
@@ -144,7 +146,7 @@ def _windowed(
         item = held[j - held[0].index]
         if item.placed is None or layout is None or newest - j >= reach:
             return True
-        return held[-1].placed is not None and held[-1].placed.travelled >= item.placed.travelled + layout.map_travel
+        return held[-1].placed is not None and held[-1].placed.travelled >= item.placed.travelled + route_reach(layout)
 
     def finish(j: int, length: int):  # noqa: ANN202 (the tuple yielded)
         span = centred_window(j, length, window)
@@ -154,7 +156,7 @@ def _windowed(
         grid = None
         if item.placed is not None and layout is not None:
             placed = [h for h in held if h.placed is not None]
-            grid = map_grid([h.placed for h in placed], placed.index(item), layout)  # type: ignore[misc]
+            grid = map_grids([h.placed for h in placed], placed.index(item), layout)  # type: ignore[misc]
         while held and held[0].index < j + 1 - max(half, reach):
             held.popleft()
         return j, item.frame, item.described, mu, item.placed, grid
@@ -201,7 +203,7 @@ def describe_range(frames: Iterable[Frame] | FrameSource, start: int, stop: int 
                                      describer.backbone.info)
     n_labels = len(describer.groups.label_names)
     placer = layout_placer(config, describer)
-    margin = max(config.lost.reference_window // 2, 2 * config.layout.max_frames if placer is not None else 0)
+    margin = max(config.lost.reference_window // 2, 4 * config.layout.max_frames if placer is not None else 0)
     first = max(0, start - margin)
     cut = (frame for _, frame in _cut(frames, first, None if stop is None else stop + margin))
     described = _windowed(cut, describer, geometry, config.lost.reference_window, start - first, placer,
@@ -214,7 +216,7 @@ def describe_range(frames: Iterable[Frame] | FrameSource, start: int, stop: int 
         yield index, MapFrame(frame.name, describer.descriptor(desc, mu), desc.evidence.sparse(), desc.appearance(),
                               frame.position, frame.timestamp, looks(frame.image),
                               label_frequencies(desc.labels, n_labels), frame.camera,
-                              layout=pack(grid) if grid is not None else None,
+                              layout=pack_both(*grid) if grid is not None else None,
                               step=placed.step if placed is not None else None)
 
 

@@ -177,6 +177,10 @@ class SequenceConfig:
     """A trajectory takes a frame's lowest cost within this many reference frames of its line."""
     contrast_window: int = 10
     """References around each one that its cost is normalised against (SeqSLAM's contrast enhancement)."""
+    contrast_distance: float = 60.0
+    """Following the distance travelled: the references of this many metres of the map's route (at its median
+    frame spacing) are the neighbourhood instead. A layout match spreads over some 20 m of road, whatever the frame
+    rate: a narrower neighbourhood takes the depth of a true match's broad valley for noise."""
     reference_prior: float = 100.0
     """Weight, in frames, of the prior in each reference's running cost statistics (hub suppression)."""
     penalty: float = 0.0
@@ -446,7 +450,8 @@ LIMITS: dict[str, dict[str, Bounds]] = {
     "sequence": {
         "length": Bounds(1, 100_000), "speeds": _AT_LEAST_0, "acquire_speeds": _ABOVE_0, "anchors": _AT_LEAST_0, "nearest": _AT_LEAST_0,
         "costs_min_frames": _AT_LEAST_1,
-        "radius": _AT_LEAST_0, "contrast_window": Bounds(2), "reference_prior": _AT_LEAST_0,
+        "radius": _AT_LEAST_0, "contrast_window": Bounds(2), "contrast_distance": _ABOVE_0,
+        "reference_prior": _AT_LEAST_0,
         "penalty": Bounds(), "exclusion": _AT_LEAST_0, "distance_window": _ABOVE_0, "distance_ratios": _ABOVE_0,
         "direction_reliability": Bounds(0.5, 0.999), "direction_scale": _ABOVE_0,
     },

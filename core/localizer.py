@@ -76,6 +76,16 @@ from .route.tracker import RouteTracker
 WINDOW_PICTURE_WIDTH = 15
 
 
+
+def contrast_references(route: np.ndarray, metres: float) -> int:
+    """The contrast neighbourhood, in references, that spans ``metres`` of a map's route (``route``: metres along
+    it at each frame) at its median frame spacing; at least 2, at most the whole map."""
+    steps = np.diff(np.asarray(route, dtype=np.float64))
+    spacing = float(np.median(steps)) if len(steps) else 0.0
+    if spacing <= 0.0:
+        return max(2, len(route))
+    return int(min(max(2, round(metres / spacing)), max(2, len(route))))
+
 class Localizer:
     """Stateful place recognition over a stream of frames from one camera."""
 
@@ -114,9 +124,10 @@ class Localizer:
         seq = self.config.sequence
         costs = LookedUpCosts if looks_up_costs(seq, self.map.n_frames) else EveryFrameCosts
         speeds = signed(seq.distance_ratios, stopped=False) if route is not None else signed(seq.speeds, stopped=True)
+        window = seq.contrast_window if route is None else contrast_references(route, seq.contrast_distance)
         return SequenceFilter(seq.length, tuple(speeds), seq.radius, seq.penalty,
-                              costs(self.map.n_frames, seq.length, seq.contrast_window, seq.reference_prior),
-                              seq.anchors, seq.contrast_window // 2, route, seq.distance_window,
+                              costs(self.map.n_frames, seq.length, window, seq.reference_prior),
+                              seq.anchors, window // 2, route, seq.distance_window,
                               seq.distance_window / seq.length)
 
     def _follow(self, progress: float | None) -> None:
@@ -320,7 +331,7 @@ class Localizer:
     def _layout_view(self, result: MatchResult, index: int) -> LayoutView:
         """The frame's grid turned and shifted as it best fits map frame ``index``'s, both drawn in the query camera's
         view: turned 180 degrees back where it views the route the opposite way (a shift then changes side)."""
-        answer = self.map.layout_grid(index)
+        answer = self.map.layout_grid(index, result.heading)
         fit = result.layout.aligned(answer)  # type: ignore[union-attr]
         metres = fit.shift * self.matcher.layout_config.cell
         if result.heading == "opposite":

@@ -12,8 +12,19 @@ import pytest
 from lostx.core.config import Config, LayoutConfig
 from lostx.core.layout.classes import CHANNELS, OBJECT, ROAD, LayoutClasses
 from lostx.core.layout.compare import GridStack, shifted, similarities, similarity
+from lostx.core.layout.curve import opposite_turns, turned_about_centre
 from lostx.core.layout.describer import FramePlacer, LiveLayout, Placed, map_grid, spread
-from lostx.core.layout.grid import LayoutGrid, accumulate, cell_weights, grid_shape, pack, unpack, unpack_levels
+from lostx.core.layout.grid import (
+    LayoutGrid,
+    accumulate,
+    cell_weights,
+    grid_shape,
+    pack,
+    pack_both,
+    stored_half,
+    unpack,
+    unpack_levels,
+)
 from lostx.core.layout.projection import FramePoints, GroundProjector
 from lostx.core.match.costs import EveryFrameCosts
 from lostx.core.match.matcher import PlaceMatcher
@@ -52,21 +63,25 @@ def test_a_sideways_shift_within_reach_is_found(rng):
 
 
 def test_both_headings_in_one_pass_equal_each_compared_alone(rng, monkeypatch):
-    """Every map frame compared under both headings at once, and (on a map too large for that) one heading's
-    asked frames alone: the same similarities as one grid against the map, best over its shifts."""
+    """Every map frame compared under both headings at once, and (on a map too large for that) one row's asked
+    frames alone: the same similarities as one grid against the map, best over its shifts. The turned grid is
+    compared with the other ends' grids where the map has them (the opposite heading); the first pass, with the
+    map camera's own grids unshifted, is kept for the heading vote."""
     from lostx.core.match import combined
 
     grids = [_grid(rng) for _ in range(30)]  # fewer than REFINE: every frame is refined either way
-    stack, query = GridStack.of(grids), _grid(rng)
-    comparison = combined.LayoutComparison(query, stack, WEIGHTS, shifts=1, min_cells=5)
-    alone = [similarity(view, stack, WEIGHTS, 1, 5) for view in (query, query.turned())]
-    # The shifted grids are compared again in one batch, their sums taken in another order: float32's precision.
-    assert np.allclose(comparison.every(), alone, atol=1e-5)
+    stack, other_ends, query = GridStack.of(grids), GridStack.of([_grid(rng) for _ in grids]), _grid(rng)
     monkeypatch.setattr(combined, "EVERY_FRAME_MAX", 10)
     refs = np.array([3, 17, 29])
-    for heading in (0, 1):
-        large = combined.LayoutComparison(query, stack, WEIGHTS, shifts=1, min_cells=5)
-        assert np.allclose(large.heading(heading).at(refs), alone[heading][refs], atol=1e-6)
+    for opposite, turned_against in ((None, stack), (other_ends, other_ends)):
+        alone = [similarity(query, stack, WEIGHTS, 1, 5), similarity(query.turned(), turned_against, WEIGHTS, 1, 5),
+                 similarity(query, stack, WEIGHTS, 0, 5), similarity(query.turned(), stack, WEIGHTS, 0, 5)]
+        comparison = combined.LayoutComparison(query, stack, WEIGHTS, shifts=1, min_cells=5, opposite=opposite)
+        # The shifted grids are compared again in one batch, their sums taken in another order: float32's precision.
+        assert np.allclose(comparison.compute(), alone, atol=1e-5)
+        for row in (combined.SAME, combined.OPPOSITE, combined.FIRST_SAME, combined.FIRST_TURNED):
+            large = combined.LayoutComparison(query, stack, WEIGHTS, shifts=1, min_cells=5, opposite=opposite)
+            assert np.allclose(large.heading(row).at(refs), alone[row][refs], atol=1e-6)
 
 
 def _smooth_grid(rng: np.random.Generator, shape=(20, 15)) -> LayoutGrid:
@@ -171,6 +186,66 @@ def test_poses_compose_and_invert():
     assert np.allclose(compose(a, relative(a, b)), b)
     # Two metres forward after turning left a quarter: two metres to the left.
     assert np.allclose(compose(np.array([0.0, 0.0, np.pi / 2]), np.array([2.0, 0.0, 0.0])), [0.0, 2.0, np.pi / 2])
+
+
+def _arc(radius: float, length: float, spacing: float, facing_back: bool) -> np.ndarray:
+    """(N, 3) camera ground poses driving anticlockwise round a circle of ``radius`` from (radius, 0), the camera
+    facing the way the car moves or back."""
+    phi = np.arange(0.0, length, spacing) / radius
+    yaw = phi + np.pi / 2 + (np.pi if facing_back else 0.0)
+    return np.stack([radius * np.cos(phi), radius * np.sin(phi), np.arctan2(np.sin(yaw), np.cos(yaw))], axis=1)
+
+
+def test_the_other_end_of_a_bend_is_turned_by_the_angle_between_its_two_tangents():
+    """The two cameras viewing one point from the two ends of a bend stand where the two tangents from that point
+    touch the circle: equally far from it, their headings 2 atan(centre / radius) apart. A camera facing back on
+    the same drive looks the other way round the bend; a straight road turns nothing."""
+    centre, radius = 15.0, 50.0
+    expected = np.degrees(2 * np.arctan(centre / radius))  # 33.4 degrees
+    middle = np.arange(40, 60)  # the other ends lie on the route, not beyond it
+    front = opposite_turns(_arc(radius, 200.0, 2.0, facing_back=False), centre)
+    rear = opposite_turns(_arc(radius, 200.0, 2.0, facing_back=True), centre)
+    assert np.allclose(front[middle], expected, atol=0.5), front[middle]
+    assert np.allclose(rear[middle], -expected, atol=0.5), rear[middle]
+    straight = np.stack([np.arange(0.0, 100.0, 3.0), np.zeros(34), np.zeros(34)], axis=1)
+    assert np.allclose(opposite_turns(straight, centre), 0.0, atol=1e-9)
+    # Beyond the route's ends the road is taken to go on straight: a frame whose other end lies beyond is turned
+    # by the bend between it and the end.
+    step = np.degrees(2.0 / radius)
+    assert np.allclose(front[-4:], [3 * step, 2 * step, step, 0.0], atol=0.01), front[-4:]
+    assert np.allclose(rear[:4], [0.0, -step, -2 * step, -3 * step], atol=0.01), rear[:4]
+
+
+def test_a_grid_gathered_from_a_camera_turned_about_its_centre_is_the_grid_turned_back(rng):
+    """Gathering the same points about the grid's centre point turned by d degrees gives, cell for cell, the grid
+    turned by -d: what a map stores for the other end of its stretch, with nothing resampled."""
+    config = LayoutConfig(blur=0.0)
+    xy = np.stack([rng.uniform(-5, 35, 40000), rng.uniform(-15, 15, 40000)], axis=1).astype(np.float32)
+    kind = (np.abs(xy[:, 1] - 0.3 * (xy[:, 0] - 15.0)) > 4.0).astype(np.int8)  # a road crossing the grid askew
+    z = np.zeros(0, np.float32)
+    points = FramePoints(xy, kind, np.ones(len(xy), np.float32), np.zeros((0, 2), np.float32), np.zeros(0, np.int8), z)
+    pose = np.array([3.0, -2.0, 0.4])
+    as_seen = accumulate([points], pose[None], pose, config)
+    for degrees in (-15.0, 15.0):
+        gathered = accumulate([points], pose[None], turned_about_centre(pose, degrees, config.centre), config)
+        right, wrong = as_seen.rotated(-degrees), as_seen.rotated(degrees)
+        both = gathered.mask & right.mask & wrong.mask
+        assert np.abs(gathered.values[0][both] - right.values[0][both]).mean() < 0.05
+        assert np.abs(gathered.values[0][both] - wrong.values[0][both]).mean() > 0.2
+
+
+def test_a_map_stores_both_ends_of_a_stretch_and_reads_a_single_grid_for_both(rng):
+    grid, other = _grid(rng), _grid(rng)
+    shape = grid.mask.shape
+    values, bits = pack_both(grid, other)
+    for other_end, expected in ((False, grid), (True, other)):
+        back = unpack(*stored_half(values, bits, shape, other_end), shape)
+        assert np.array_equal(back.mask, expected.mask)
+        assert np.abs(back.values - expected.values).max() <= 0.5 * 4.0 / 255 + 1e-6
+    single = pack(grid)  # a map built before the other end was stored
+    for other_end in (False, True):
+        assert np.array_equal(unpack(*stored_half(*single, shape, other_end), shape).values,
+                              unpack(*single, shape).values)
 
 
 def _point(x: float, y: float, kind: int = ROAD) -> FramePoints:

@@ -9,7 +9,10 @@ stretch seen from its other end has the same layout, turned (SPOT's principle, w
 - :mod:`.grid`: a window of frames' points brought into one camera's ground frame with the motion between
   them, binned on the grid, and the grids stored in a map;
 - :mod:`.compare`: grids compared as they are and turned 180 degrees (a masked correlation per channel);
-- :mod:`.describer`: the running window of a stream, and the centred windows of a map.
+- :mod:`.curve`: where the camera viewing a map frame's stretch from its other end stands, by the map's route
+  (on a bend the two views are not 180 degrees apart);
+- :mod:`.describer`: the running window of a stream, and the centred windows of a map (each also gathered as
+  its stretch's other end sees it).
 
 May import: :mod:`lostx.core.motion`, :mod:`lostx.core.backbones` and the foundations.
 """

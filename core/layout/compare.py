@@ -159,14 +159,15 @@ def aligned(view: LayoutGrid, target: LayoutGrid, weights: np.ndarray, shifts: i
 
 
 def refined(views: Sequence[LayoutGrid], maps: GridStack, rows: np.ndarray, weights: np.ndarray, shifts: int,
-            turns: Sequence[float], min_cells: int) -> np.ndarray:
+            turns: Sequence[float], min_cells: int, whole: bool = False) -> np.ndarray:
     """(H, K) each view's best similarity with its own ``rows`` ((H, K) map grids) over the sideways shifts of up to
-    ``shifts`` cells and the ``turns`` (degrees, each also shifted), the view as it lies unshifted left out.
+    ``shifts`` cells and the ``turns`` (degrees, each also shifted), the view as it lies unshifted left out unless
+    ``whole``.
 
     Every view, variant and map grid in a few batched products: each heading's grids are few, so that the cost lies
     in the number of calls more than in the arithmetic. The map's sums of squared levels (beyond float32's exact
     integers) are summed in float64."""
-    variants = _variants(views, shifts, turns)  # (H, V, 1 + C, P)
+    variants = _variants(views, shifts, turns, whole)  # (H, V, 1 + C, P)
     m, q = variants[:, :, 0], variants[:, :, 1:]
     h, v, c, p = q.shape
     k = rows.shape[1]
@@ -196,9 +197,10 @@ def refined(views: Sequence[LayoutGrid], maps: GridStack, rows: np.ndarray, weig
     return np.where(n >= min_cells, score, -np.inf).max(axis=2)
 
 
-def _variants(views: Sequence[LayoutGrid], shifts: int, turns: Sequence[float]) -> np.ndarray:
+def _variants(views: Sequence[LayoutGrid], shifts: int, turns: Sequence[float], whole: bool = False) -> np.ndarray:
     """(H, V, 1 + C, P) float32 each view's mask and values (zero where unobserved) shifted sideways by every offset
-    up to ``shifts`` cells but 0, then turned by each of ``turns`` and shifted by every offset (0 included)."""
+    up to ``shifts`` cells (0 only where ``whole``), then turned by each of ``turns`` and shifted by every offset (0
+    included)."""
     turned = [[view] + [view.rotated(angle) for angle in turns] for view in views]
     cells = np.stack([[np.concatenate([g.mask[None], g.values]) for g in row] for row in turned]).astype(np.float32)
     a, x = cells.shape[-2:]
@@ -206,7 +208,7 @@ def _variants(views: Sequence[LayoutGrid], shifts: int, turns: Sequence[float]) 
     padded[..., shifts: shifts + x] = cells
     # Window j of the padded columns is the grid moved ``shifts - j`` cells to the right, moved-in cells unobserved.
     windows = np.lib.stride_tricks.sliding_window_view(padded, x, axis=-1)  # (H, 1 + T, 1 + C, A, 2S + 1, X)
-    which = [(0, j) for j in range(2 * shifts + 1) if j != shifts]
+    which = [(0, j) for j in range(2 * shifts + 1) if whole or j != shifts]
     which += [(t, j) for t in range(1, len(turns) + 1) for j in range(2 * shifts + 1)]
     turn, window = np.array(which).T
     picked = windows[:, turn, :, :, window]  # (V, H, 1 + C, A, X)

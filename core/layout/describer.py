@@ -25,6 +25,7 @@ from ..frame import Frame
 from ..geometry import CameraGeometry
 from ..motion.odometer import Odometer
 from .classes import ROAD, LayoutClasses
+from .curve import opposite_turns, turned_about_centre
 from .grid import Gathering, LayoutGrid, accumulate
 from .projection import FramePoints, GroundProjector
 
@@ -167,11 +168,27 @@ class LiveLayout:
                          tuple(n for n, _ in self._recent), np.stack([p.pose for _, p in chosen]), frame.pose, cfg)
 
 
-def map_grid(frames: list[Placed], index: int, config: LayoutConfig) -> LayoutGrid:
+def map_grid(frames: list[Placed], index: int, config: LayoutConfig, turn: float = 0.0) -> LayoutGrid:
     """The grid of map frame ``frames[index]`` from the frames around it (within ``map_travel`` metres either
-    side, at most ``max_frames``)."""
+    side, at most ``max_frames``), gathered in its camera's ground frame turned by ``turn`` degrees about its centre
+    point (the grid turned by ``-turn``, every point counted where it lands: nothing resampled)."""
     travelled = np.array([f.travelled for f in frames])
     centre = travelled[index]
     chosen = spread(travelled, centre - config.map_travel, centre + config.map_travel, config.max_frames, index)
     picked = [frames[i] for i in chosen]
-    return accumulate([f.points for f in picked], np.stack([f.pose for f in picked]), frames[index].pose, config)
+    current = frames[index].pose if turn == 0.0 else turned_about_centre(frames[index].pose, turn, config.centre)
+    return accumulate([f.points for f in picked], np.stack([f.pose for f in picked]), current, config)
+
+
+def route_reach(config: LayoutConfig) -> float:
+    """Metres of route on each side of a map frame its grids need: the frames it gathers, and the route around its
+    other end (:func:`.curve.opposite_turns`: about ``2 * centre`` along, searched ``centre`` either side)."""
+    return max(config.map_travel, 3.0 * config.centre)
+
+
+def map_grids(frames: list[Placed], index: int, config: LayoutConfig) -> tuple[LayoutGrid, LayoutGrid]:
+    """Map frame ``frames[index]``'s grid as its camera views the stretch, and as the camera at the stretch's other
+    end views it, turned back to face the same way (:mod:`.curve`: the two differ where the road bends). The frames
+    are the map's route around it, in order."""
+    turn = float(opposite_turns(np.stack([f.pose for f in frames]), config.centre, np.array([index]))[0])
+    return map_grid(frames, index, config), map_grid(frames, index, config, turn)

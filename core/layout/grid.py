@@ -170,6 +170,25 @@ def pack(grid: LayoutGrid) -> tuple[np.ndarray, np.ndarray]:
     return values.ravel(), np.packbits(grid.mask.ravel())
 
 
+def pack_both(grid: LayoutGrid, other_end: LayoutGrid) -> tuple[np.ndarray, np.ndarray]:
+    """A map frame's two grids (as its camera views the stretch, and as the stretch's other end views it) as a map
+    stores them: one row of :func:`pack`'s values, then one of mask bits, each the first grid's then the other's."""
+    (values, bits), (other_values, other_bits) = pack(grid), pack(other_end)
+    return np.concatenate([values, other_values]), np.concatenate([bits, other_bits])
+
+
+def stored_half(values: np.ndarray, bits: np.ndarray, shape: tuple[int, int], other_end: bool) -> tuple[np.ndarray,
+                                                                                                       np.ndarray]:
+    """Stored grids' rows ((..., V) values, (..., B) bits) of one of :func:`pack_both`'s two grids (the other end's
+    where ``other_end``); rows of one grid (a map built before the other end was stored) give that grid either way."""
+    rows, cols = shape
+    size, nbits = len(CHANNELS) * rows * cols, -(-rows * cols // 8)
+    if values.shape[-1] != 2 * size:
+        return values, bits
+    start, bit_start = (size, nbits) if other_end else (0, 0)
+    return values[..., start: start + size], bits[..., bit_start: bit_start + nbits]
+
+
 def unpack(values: np.ndarray, bits: np.ndarray, shape: tuple[int, int]) -> LayoutGrid:
     rows, cols = shape
     grid = np.asarray(values, dtype=np.float32).reshape(len(CHANNELS), rows, cols) / _SCALE

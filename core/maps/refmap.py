@@ -47,12 +47,14 @@ import numpy as np
 
 from ..backbones import BackboneInfo, Quantisation
 from ..config import LayoutConfig
-from ..geometry import CameraGeometry
-from ..layout.compare import GridStack
-from ..layout.grid import LayoutGrid, grid_shape, unpack, unpack_levels
 from ..describe.keypoints import KeypointEvidence
 from ..describe.lost import DescriptorStats
 from ..errors import MapError
+from ..frame import Heading
+from ..geometry import CameraGeometry
+from ..layout.classes import CHANNELS
+from ..layout.compare import GridStack
+from ..layout.grid import LayoutGrid, grid_shape, stored_half, unpack, unpack_levels
 from .format import BACKBONE_IDENTITY, MAP_FORMAT, READABLE_VERSIONS, MapKind, backbone_dict, backbone_identity
 from .index import ApproximateIndex, file_sha256
 
@@ -73,7 +75,7 @@ class ReferenceMap:
         )
         self.timestamps: np.ndarray | None = arrays.get("timestamps")
         self._index: ApproximateIndex | None = None
-        self._layout_stack: GridStack | None = None
+        self._layout_stacks: dict[bool, GridStack] = {}
         self.backbone: dict[str, Any] | None = manifest.get("backbone")
         if self.kind == "lost":
             self.stats = DescriptorStats(arrays["stats_mean"], arrays["stats_std"], len(self.names))
@@ -184,21 +186,38 @@ class ReferenceMap:
         recorded = (self.manifest.get("layout") or {}).get("geometry")
         return CameraGeometry(**recorded, source=str(self.path)) if recorded else None
 
-    def layout_grid(self, index: int) -> LayoutGrid:
-        """Map frame ``index``'s layout grid (a map with a layout)."""
+    @property
+    def stores_other_ends(self) -> bool:
+        """Whether each frame's grid is also stored as the other end of its stretch views it (maps built before
+        that compare a query under the opposite heading with the grid as the map's camera saw it)."""
+        settings = self.layout_settings
+        if settings is None:
+            return False
+        rows, cols = grid_shape(settings)
+        return self._arrays["layout_values"].shape[1] == 2 * len(CHANNELS) * rows * cols
+
+    def layout_grid(self, index: int, heading: Heading = "same") -> LayoutGrid:
+        """Map frame ``index``'s layout grid (a map with a layout), as a query under ``heading`` is compared with
+        it: as the map's camera viewed the stretch, or (``opposite``) as the camera at its other end views it, turned
+        back to face the same way (the two differ where the road bends, :mod:`lostx.core.layout.curve`)."""
         settings = self.layout_settings
         assert settings is not None
-        return unpack(self._arrays["layout_values"][index], self._arrays["layout_mask"][index], grid_shape(settings))
+        shape = grid_shape(settings)
+        return unpack(*stored_half(self._arrays["layout_values"][index], self._arrays["layout_mask"][index], shape,
+                                   heading == "opposite"), shape)
 
-    def layout_stack(self) -> GridStack:
-        """Every map frame's layout grid, ready to compare (read once, on first use)."""
-        if self._layout_stack is None:
+    def layout_stack(self, heading: Heading = "same") -> GridStack:
+        """Every map frame's layout grid as :meth:`layout_grid` gives it, ready to compare (read once, on first
+        use; one stack for both headings on a map that stores no other ends)."""
+        other_end = heading == "opposite" and self.stores_other_ends
+        if other_end not in self._layout_stacks:
             settings = self.layout_settings
             assert settings is not None
+            shape = grid_shape(settings)
             # The stored levels as they are: their sums over cells are exact.
-            self._layout_stack = GridStack(*unpack_levels(self._arrays["layout_values"], self._arrays["layout_mask"],
-                                                          grid_shape(settings)))
-        return self._layout_stack
+            self._layout_stacks[other_end] = GridStack(*unpack_levels(
+                *stored_half(self._arrays["layout_values"], self._arrays["layout_mask"], shape, other_end), shape))
+        return self._layout_stacks[other_end]
 
     @property
     def progress(self) -> np.ndarray | None:

@@ -28,11 +28,19 @@ SAMPLE = 512
 """Map frames (evenly spaced) whose scores give a larger map's means and standard deviations."""
 REFINE = 64
 """The map frames most similar to a query as the grids lie that are compared again shifted sideways."""
+SAME, OPPOSITE, FIRST_SAME, FIRST_TURNED = 0, 1, 2, 3
+"""The rows of a comparison's scores. SAME: the frame's grid as it lies against the map's grids as its camera saw
+them (the same heading); OPPOSITE: turned 180 degrees, its most similar ones against the grids as each stretch's
+other end sees it (the opposite heading). FIRST_SAME and FIRST_TURNED: the one pass of the grid as it lies and
+turned against the map camera's own grids, which every row starts from; the heading vote weighs them, both
+hypotheses judged against the same grids."""
+_VIEW = (0, 1, 0, 1)
+"""Each row's view of the frame's grid: as it lies (0) or turned (1)."""
 
 
 class PendingComparison(Protocol):
     def result(self) -> np.ndarray:
-        """(2, N) both headings' similarity with every map frame (waiting for it)."""
+        """(4, N) each row's similarity with every map frame (:class:`LayoutComparison`; waiting for it)."""
 
 
 class Comparer(Protocol):
@@ -51,11 +59,14 @@ class LayoutComparison:
     and shifted sideways."""
 
     def __init__(self, grid: LayoutGrid | Gathering, maps: GridStack, weights: np.ndarray, shifts: int,
-                 min_cells: int, turns: tuple[float, ...] = (0.0,)) -> None:
+                 min_cells: int, turns: tuple[float, ...] = (0.0,), opposite: GridStack | None = None) -> None:
         self.source = grid
         """The frame's grid, or the gathering that gives it (gathered where the comparison runs)."""
         self._views: tuple[LayoutGrid, LayoutGrid] | None = None
         self.maps, self.weights, self.shifts, self.min_cells, self.turns = maps, weights, shifts, min_cells, turns
+        self.stacks = (maps, maps if opposite is None else opposite)
+        """The map's grids each heading is compared with: as they lie, and as seen from the other end of each
+        stretch (turned with the map's route where it curves, :mod:`lostx.core.layout.curve`)."""
         self._every: np.ndarray | None = None
         self._future: PendingComparison | None = None
         self.seconds = 0.0
@@ -71,7 +82,7 @@ class LayoutComparison:
         return self._views
 
     def heading(self, index: int) -> LayoutScores:
-        """The scores under heading ``index`` (0: as the grid lies, 1: turned)."""
+        """The scores of row ``index`` (:data:`SAME`, :data:`OPPOSITE`, :data:`FIRST_SAME`, :data:`FIRST_TURNED`)."""
         return LayoutScores(self, index)
 
     def start(self, comparer: Comparer) -> None:
@@ -80,39 +91,57 @@ class LayoutComparison:
         self._future = comparer.submit(self)
 
     def compute(self) -> np.ndarray:
-        """(2, N) both headings' similarity with every map frame, computed here."""
-        return self._compare(self.maps, (0, 1))
+        """(4, N) each row's similarity with every map frame (:data:`SAME`, :data:`OPPOSITE`, :data:`FIRST_SAME`,
+        :data:`FIRST_TURNED`), computed here."""
+        return self._compare((SAME, OPPOSITE, FIRST_SAME, FIRST_TURNED))
 
     def every(self) -> np.ndarray:
-        """(2, N) both headings' similarity with every map frame."""
+        """(4, N) each row's similarity with every map frame."""
         if self._every is None and self._future is not None:
             self._every = self._future.result()
         if self._every is None:
             self._every = self.compute()
         return self._every
 
-    def at(self, refs: np.ndarray, heading: int) -> np.ndarray:
-        """Heading ``heading``'s similarity with the map frames ``refs`` (on a map too large to compare every
-        frame, that heading's alone is computed)."""
+    def at(self, refs: np.ndarray, row: int) -> np.ndarray:
+        """Row ``row``'s similarity with the map frames ``refs`` (on a map too large to compare every frame, that
+        row's alone is computed)."""
         if self._every is not None or self.maps.n <= EVERY_FRAME_MAX:
-            return self.every()[heading, refs]
-        return self._compare(self.maps.rows(refs), (heading,))[0]
+            return self.every()[row, refs]
+        return self._compare((row,), refs)[0]
 
-    def _compare(self, maps: GridStack, headings: tuple[int, ...]) -> np.ndarray:
-        """(len(headings), N): every map grid as it lies, then each heading's ``REFINE`` most similar again, best
-        over the small turns and sideways shifts (a turn or a shift only ever finds a better fit, and only the best
-        ones matter)."""
+    def _compare(self, rows: tuple[int, ...], refs: np.ndarray | None = None) -> np.ndarray:
+        """(len(rows), N): every map grid (or those ``refs``) as its camera saw it, in one pass for the views the rows
+        need; then each refined row's ``REFINE`` most similar again, best over the small turns and sideways shifts
+        (a turn or a shift only ever finds a better fit, and only the best ones matter), the opposite heading's
+        against the other ends' grids (as they lie too). Rows refined with one stack share its batch."""
         start = time.perf_counter()
-        views = [self.views[h] for h in headings]
-        scores = similarities(views, maps, self.weights, 0, self.min_cells)
-        turns = [angle for angle in self.turns if angle != 0.0]
-        if (self.shifts or turns) and maps.n:
-            ranked = np.where(np.isfinite(scores), scores, -np.inf)
-            best = np.argsort(-ranked, axis=1, kind="stable")[:, :REFINE]
-            rows = np.take_along_axis(scores, best, axis=1)
-            again = refined(views, maps, best, self.weights, self.shifts, turns, self.min_cells)
-            np.put_along_axis(scores, best, np.maximum(rows, again), axis=1)
+        maps = self.maps if refs is None else self.maps.rows(refs)
+        needed = sorted({_VIEW[r] for r in rows})
+        first = dict(zip(needed, similarities([self.views[v] for v in needed], maps, self.weights, 0,
+                                              self.min_cells)))
+        scores = np.stack([first[_VIEW[r]] for r in rows])
+        refine = [i for i, r in enumerate(rows) if r in (SAME, OPPOSITE)]
+        for stack in {id(self.stacks[rows[i]]): self.stacks[rows[i]] for i in refine}.values():
+            mine = [i for i in refine if self.stacks[rows[i]] is stack]
+            scores[mine] = self._refined(scores[mine], stack if refs is None else stack.rows(refs),
+                                         [_VIEW[rows[i]] for i in mine], whole=stack is not self.maps)
         self.seconds += time.perf_counter() - start
+        return scores
+
+    def _refined(self, scores: np.ndarray, maps: GridStack, view_indices: list[int], whole: bool) -> np.ndarray:
+        """``scores`` (of the views against the map camera's grids), each view's ``REFINE`` best compared again with
+        ``maps``, turned and shifted (and as they lie, where ``whole``: another stack than the first pass's)."""
+        turns = [angle for angle in self.turns if angle != 0.0]
+        if not (self.shifts or turns or whole) or not maps.n:
+            return scores
+        scores = scores.copy()
+        ranked = np.where(np.isfinite(scores), scores, -np.inf)
+        best = np.argsort(-ranked, axis=1, kind="stable")[:, :REFINE]
+        again = refined([self.views[v] for v in view_indices], maps, best, self.weights, self.shifts, turns,
+                        self.min_cells, whole)
+        rows = np.take_along_axis(scores, best, axis=1)
+        np.put_along_axis(scores, best, again if whole else np.maximum(rows, again), axis=1)
         return scores
 
 
@@ -122,12 +151,12 @@ class LayoutScores:
 
     comparison: LayoutComparison
     index: int
-    """0: the grid as it lies (``same``); 1: turned 180 degrees (``opposite``)."""
+    """The comparison's row (:data:`SAME`, :data:`OPPOSITE`, :data:`FIRST_SAME`, :data:`FIRST_TURNED`)."""
 
     @property
     def query(self) -> LayoutGrid:
         """The frame's grid under this heading."""
-        return self.comparison.views[self.index]
+        return self.comparison.views[_VIEW[self.index]]
 
     @property
     def n_frames(self) -> int:
@@ -212,11 +241,14 @@ class CombinedScores:
         return out
 
 
-def layout_vote(same: LayoutScores, opposite: LayoutScores) -> float:
-    """The layout's vote on the heading (> 0 favours opposite): which heading's best map frame stands further
-    above that heading's other map frames, in standard deviations. Each heading's similarities are judged
-    against their own spread, since comparing grids as they are and turned differs for every pair of
-    frames, not only the true one (both cameras see road straight ahead)."""
+def layout_vote(comparison: LayoutComparison) -> float:
+    """The layout's vote on the heading (> 0 favours opposite): which of the frame's grid as it lies and turned 180
+    degrees has its best map frame stand further above its other map frames, in standard deviations, in the one
+    pass against the map camera's own grids (:data:`FIRST_SAME`, :data:`FIRST_TURNED`: the two hypotheses judged
+    against the same grids; the other ends' grids rank the map's frames under the opposite heading). Each one's
+    similarities are judged against their own spread, since comparing grids as they are and turned differs for every
+    pair of frames, not only the true one (both cameras see road straight ahead)."""
+    same, opposite = comparison.heading(FIRST_SAME), comparison.heading(FIRST_TURNED)
     def lead(scores: LayoutScores) -> float:
         values = scores.at(sampled(scores.n_frames))
         finite = values[np.isfinite(values)]

@@ -94,7 +94,9 @@ class ComparisonProcess:
         """The numbers of the stream's frames the process holds (sent once each, let go as the stream does)."""
         self.alive = True
         self._finalizer = weakref.finalize(self, _stop, self._conn, self._process, os.getpid())
-        self._send((comparison.maps, comparison.weights, comparison.shifts, comparison.min_cells, comparison.turns))
+        opposite = None if comparison.stacks[1] is comparison.maps else comparison.stacks[1]
+        self._send((comparison.maps, comparison.weights, comparison.shifts, comparison.min_cells, comparison.turns,
+                    opposite))
 
     def submit(self, comparison: LayoutComparison) -> _Reply:
         # Replies not yet asked for are read first: a process blocked writing them would not read this request.
@@ -180,7 +182,7 @@ def _serve(conn: Connection) -> None:
     """The comparison process: the map's grids and the settings first, then one frame at a time, its grid or what
     gathers it, each answered with (request, scores, seconds, the grid it gathered) until the socket closes."""
     try:
-        maps, weights, shifts, min_cells, turns = conn.recv()
+        maps, weights, shifts, min_cells, turns, opposite = conn.recv()
         frames: dict[int, FramePoints] = {}
         while True:
             request, kind, body = conn.recv()
@@ -194,7 +196,8 @@ def _serve(conn: Connection) -> None:
                     gathered = (grid.values, grid.mask)
                 else:
                     grid = LayoutGrid(*body)
-                scores: np.ndarray | None = LayoutComparison(grid, maps, weights, shifts, min_cells, turns).compute()
+                scores: np.ndarray | None = LayoutComparison(grid, maps, weights, shifts, min_cells, turns,
+                                                                    opposite).compute()
             except Exception:  # noqa: BLE001 (the caller computes it again, and sees the error itself)
                 scores, gathered = None, None
             conn.send((request, scores, time.perf_counter() - start, gathered))

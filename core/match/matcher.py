@@ -51,9 +51,9 @@ class QueryDescription:
     """(h, w) grouped semantic labels."""
     timings: dict[str, float] = field(default_factory=dict)
     """Seconds: network, descriptor, layout, motion."""
-    layout: Gathering | None = None
+    layout: LayoutGrid | Gathering | None = None
     """The frame's layout grid (gathered over the distance just travelled; :meth:`Gathering.grid`), where the layout
-    is on."""
+    is on; a grid as such where it was stored (an evaluation's cache)."""
     progress: float | None = None
     """Metres the stream has advanced along its camera's axis (lostx.core.motion), where its motion is known."""
 
@@ -246,6 +246,10 @@ class PlaceMatcher:
         weights[4] = cfg.vehicle_weight
         self._layout_weights = weights
         self._layout_shifts = int(round(cfg.across_shift / settings.cell))
+        if not self.map.stores_other_ends:
+            warnings.warn(f"the map {self.map.path} was built before lostx stored each frame's grid as the other end of "
+                          f"its stretch sees it: views from the other end of a bend are compared unaligned (rebuild "
+                          f"the map to align them)", LayoutWarning, stacklevel=3)
 
     def _layout_unavailable(self, reason: str) -> None:
         """A frame cannot have a layout: say why, once."""
@@ -495,7 +499,7 @@ class PlaceMatcher:
             return None
         cfg = self.config.layout
         comparison = LayoutComparison(grid, self.map.layout_stack(), self._layout_weights, self._layout_shifts,
-                                      cfg.min_cells, cfg.turns)
+                                      cfg.min_cells, cfg.turns, self.map.layout_stack("opposite"))
         if self.map.n_frames <= EVERY_FRAME_MAX:
             comparison.start(self._comparer(comparison))
         return comparison
@@ -531,7 +535,7 @@ class PlaceMatcher:
                 confidence=margin(candidates, ranked, cfg.verify.uniqueness_exclusion),
                 n_matches=np.array([counts[rows[int(c)]] if int(c) in rows else 0 for c in candidates]),
                 map_scores=combined, layout=layout)
-        vote = 0.5 * (lost_vote + layout_vote(out["same"].layout, out["opposite"].layout))  # type: ignore[arg-type]
+        vote = 0.5 * (lost_vote + layout_vote(comparison))
         return out, vote
 
 

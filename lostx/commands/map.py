@@ -110,7 +110,10 @@ def _layout_line(refmap, traverse) -> str:  # noqa: ANN001 (ReferenceMap, Traver
     """What the map knows of its places' layout, and why not where it has none."""
     if refmap.layout_settings is not None:
         motion = "odometry" if traverse.odometry is not None else "visual odometry"
-        return f"layout     on: a grid of {refmap.layout_settings.cell:g} m cells per frame, motion from {motion}"
+        ends = ("as its camera and as the other end of its stretch see it" if refmap.stores_other_ends
+                else "as its camera saw it")
+        return (f"layout     on: a grid of {refmap.layout_settings.cell:g} m cells per frame, {ends}, "
+                f"motion from {motion}")
     if traverse.geometry is None:
         return ("layout     off: the frames carry no camera geometry (put a camera.toml beside them or give "
                 "--camera-file; see docs/datasets.md), so a view from the other end is matched by LoST-X alone")
