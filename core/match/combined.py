@@ -55,8 +55,9 @@ class Comparer(Protocol):
 
 class LayoutComparison:
     """One frame's layout grid against the map's under both headings (as it lies, and turned 180 degrees): every
-    map grid compared as it lies in one pass when first asked, the most similar ones again turned a few degrees
-    and shifted sideways."""
+    map grid, as the map's camera saw it, compared in one pass when first asked; the most similar ones again turned
+    a few degrees and shifted sideways, the opposite heading's against the grids as each stretch's other end sees
+    it (``opposite``, where the map stores them)."""
 
     def __init__(self, grid: LayoutGrid | Gathering, maps: GridStack, weights: np.ndarray, shifts: int,
                  min_cells: int, turns: tuple[float, ...] = (0.0,), opposite: GridStack | None = None) -> None:
@@ -65,8 +66,8 @@ class LayoutComparison:
         self._views: tuple[LayoutGrid, LayoutGrid] | None = None
         self.maps, self.weights, self.shifts, self.min_cells, self.turns = maps, weights, shifts, min_cells, turns
         self.stacks = (maps, maps if opposite is None else opposite)
-        """The map's grids each heading is compared with: as they lie, and as seen from the other end of each
-        stretch (turned with the map's route where it curves, :mod:`lostx.core.layout.curve`)."""
+        """The map's grids each heading is refined against: as the map's camera saw each stretch, and as its other end
+        sees it (gathered in that camera's frame, found on the map's route: :mod:`lostx.core.layout.curve`)."""
         self._every: np.ndarray | None = None
         self._future: PendingComparison | None = None
         self.seconds = 0.0
