@@ -42,7 +42,7 @@ from lostx.core.errors import InputError, MapError
 from lostx.core.frame import Frame
 from lostx.core.describe.keypoints import KeypointEvidence
 from lostx.core.describe.reduce import reduced_dims
-from lostx.core.layout.grid import Gathering, pack, unpack
+from lostx.core.layout.grid import as_grid, pack, unpack
 from lostx.core.localizer import Localizer
 from lostx.core.match.matcher import FrameMatch, MatchResult, PlaceMatcher, QueryDescription, uniqueness
 from lostx.core.maps.refmap import ReferenceMap
@@ -193,7 +193,7 @@ def _save_descriptions(path: Path, items: list[QueryDescription]) -> None:
         "frame_slots": slots, "grid": np.array(ev.grid), "feature_dim": np.array(ev.feature_dim),
     }
     if all(d.layout is not None for d in items):
-        grids = [d.layout.grid() if isinstance(d.layout, Gathering) else d.layout for d in items]
+        grids = [as_grid(d.layout) for d in items]  # type: ignore[arg-type]
         packed = [pack(grid) for grid in grids]  # type: ignore[arg-type]
         arrays["layout_values"] = np.stack([v for v, _ in packed])
         arrays["layout_mask"] = np.stack([m for _, m in packed])

@@ -371,7 +371,7 @@ def test_a_map_built_before_the_other_ends_were_stored_matches_as_before_and_say
 def test_an_evaluation_stores_its_queries_layout_and_reads_it_back(scene, maps, mosaic, tmp_path):
     """`lostx eval` keeps each query's description (its gathered layout grid included) in its cache, and a second
     run reads the same grids back."""
-    from lostx.core.layout.grid import Gathering
+    from lostx.core.layout.grid import as_grid
     from lostx.core.match.matcher import PlaceMatcher
     from lostx.evaluation.methods import query_descriptions
 
@@ -380,7 +380,7 @@ def test_an_evaluation_stores_its_queries_layout_and_reads_it_back(scene, maps, 
     again = query_descriptions(traverse, PlaceMatcher(maps["rear"], Config(), mosaic), tmp_path, Config(), False)
     assert len(list(tmp_path.glob("queries-*.npz"))) == 1
     for made, read in zip(first, again):
-        grid = made.layout.grid() if isinstance(made.layout, Gathering) else made.layout
+        grid = as_grid(made.layout)
         assert grid.observed > 100
         assert np.array_equal(read.layout.mask, grid.mask)
         assert np.abs(read.layout.values - grid.values).max() <= 0.5 * 4.0 / 255 + 1e-6

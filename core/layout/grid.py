@@ -127,6 +127,11 @@ class Gathering:
             self.frames = ()
 
 
+def as_grid(source: LayoutGrid | Gathering) -> LayoutGrid:
+    """The grid itself, or the one a gathering gives (gathered here unless it already was)."""
+    return source.grid() if isinstance(source, Gathering) else source
+
+
 def cell_weights(points: list[tuple[np.ndarray, np.ndarray, np.ndarray]], here: np.ndarray, kinds: int,
                  config: LayoutConfig) -> np.ndarray:
     """(kinds * A * X,) float64: the weights of each frame's points (xy, kind, weight) by kind and cell, the frames
@@ -177,14 +182,20 @@ def pack_both(grid: LayoutGrid, other_end: LayoutGrid) -> tuple[np.ndarray, np.n
     return np.concatenate([values, other_values]), np.concatenate([bits, other_bits])
 
 
+def holds_both(values: np.ndarray, shape: tuple[int, int]) -> bool:
+    """Whether stored grids' value rows ((..., V)) hold :func:`pack_both`'s two grids, not :func:`pack`'s one."""
+    rows, cols = shape
+    return values.shape[-1] == 2 * len(CHANNELS) * rows * cols
+
+
 def stored_half(values: np.ndarray, bits: np.ndarray, shape: tuple[int, int], other_end: bool) -> tuple[np.ndarray,
                                                                                                        np.ndarray]:
     """Stored grids' rows ((..., V) values, (..., B) bits) of one of :func:`pack_both`'s two grids (the other end's
     where ``other_end``); rows of one grid (a map built before the other end was stored) give that grid either way."""
+    if not holds_both(values, shape):
+        return values, bits
     rows, cols = shape
     size, nbits = len(CHANNELS) * rows * cols, -(-rows * cols // 8)
-    if values.shape[-1] != 2 * size:
-        return values, bits
     start, bit_start = (size, nbits) if other_end else (0, 0)
     return values[..., start: start + size], bits[..., bit_start: bit_start + nbits]
 

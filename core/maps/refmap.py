@@ -52,9 +52,8 @@ from ..describe.lost import DescriptorStats
 from ..errors import MapError
 from ..frame import Heading
 from ..geometry import CameraGeometry
-from ..layout.classes import CHANNELS
 from ..layout.compare import GridStack
-from ..layout.grid import LayoutGrid, grid_shape, stored_half, unpack, unpack_levels
+from ..layout.grid import LayoutGrid, grid_shape, holds_both, stored_half, unpack, unpack_levels
 from .format import BACKBONE_IDENTITY, MAP_FORMAT, READABLE_VERSIONS, MapKind, backbone_dict, backbone_identity
 from .index import ApproximateIndex, file_sha256
 
@@ -193,8 +192,7 @@ class ReferenceMap:
         settings = self.layout_settings
         if settings is None:
             return False
-        rows, cols = grid_shape(settings)
-        return self._arrays["layout_values"].shape[1] == 2 * len(CHANNELS) * rows * cols
+        return holds_both(self._arrays["layout_values"], grid_shape(settings))
 
     def layout_grid(self, index: int, heading: Heading = "same") -> LayoutGrid:
         """Map frame ``index``'s layout grid (a map with a layout), as a query under ``heading`` is compared with

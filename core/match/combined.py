@@ -19,7 +19,7 @@ from typing import Protocol
 import numpy as np
 
 from ..layout.compare import Alignment, GridStack, aligned, refined, similarities
-from ..layout.grid import Gathering, LayoutGrid
+from ..layout.grid import Gathering, LayoutGrid, as_grid
 from .scores import MapScores
 
 EVERY_FRAME_MAX = 20000
@@ -65,6 +65,8 @@ class LayoutComparison:
         """The frame's grid, or the gathering that gives it (gathered where the comparison runs)."""
         self._views: tuple[LayoutGrid, LayoutGrid] | None = None
         self.maps, self.weights, self.shifts, self.min_cells, self.turns = maps, weights, shifts, min_cells, turns
+        self.opposite = opposite
+        """The map's grids as each stretch's other end sees it (None: a map that stores none)."""
         self.stacks = (maps, maps if opposite is None else opposite)
         """The map's grids each heading is refined against: as the map's camera saw each stretch, and as its other end
         sees it (gathered in that camera's frame, found on the map's route: :mod:`lostx.core.layout.curve`)."""
@@ -78,7 +80,7 @@ class LayoutComparison:
     def views(self) -> tuple[LayoutGrid, LayoutGrid]:
         """The frame's grid as it lies and turned 180 degrees."""
         if self._views is None:
-            grid = self.source.grid() if isinstance(self.source, Gathering) else self.source
+            grid = as_grid(self.source)
             self._views = (grid, grid.turned())
         return self._views
 

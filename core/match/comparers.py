@@ -94,9 +94,8 @@ class ComparisonProcess:
         """The numbers of the stream's frames the process holds (sent once each, let go as the stream does)."""
         self.alive = True
         self._finalizer = weakref.finalize(self, _stop, self._conn, self._process, os.getpid())
-        opposite = None if comparison.stacks[1] is comparison.maps else comparison.stacks[1]
         self._send((comparison.maps, comparison.weights, comparison.shifts, comparison.min_cells, comparison.turns,
-                    opposite))
+                    comparison.opposite))
 
     def submit(self, comparison: LayoutComparison) -> _Reply:
         # Replies not yet asked for are read first: a process blocked writing them would not read this request.
