@@ -18,6 +18,7 @@ import dataclasses
 import json
 import tempfile
 import warnings
+from contextlib import nullcontext
 from pathlib import Path
 from unittest import mock
 
@@ -25,6 +26,10 @@ import numpy as np
 
 from common import RESULTS, print_table, write_json
 from lostx.core import Config, Localizer, LostDescriber, ReferenceMap, build_map, load_backbone
+from lostx.core.config import LayoutConfig
+from lostx.core.layout.curve import faces_forward, opposite_turns, turned_about_centre
+from lostx.core.layout.describer import map_grid, spread
+from lostx.core.layout.grid import accumulate
 from lostx.core.match.matcher import PlaceMatcher
 from lostx.core.paths import data_dir
 from lostx.replay.dataset import SourceOptions, open_traverse
@@ -45,9 +50,28 @@ AS_SEEN = dataclasses.replace(Config(), layout=dataclasses.replace(Config().layo
 """The defaults, with the map's grids compared under the opposite heading as the map's camera saw them, turned 180
 degrees (as maps built before the other ends were stored are): told apart from the defaults by identity."""
 
+FACED = dataclasses.replace(Config(), layout=dataclasses.replace(Config().layout))
+"""The defaults, with the other end's grid gathering only the ``query_travel`` metres of route on the side the map
+camera faces, the road a query at that end has driven (a one-sided gathering against the query's one-sided one),
+instead of ``map_travel`` metres either side (told apart by identity)."""
+
+
+def _gathered_faced(frames: list, index: int, config: LayoutConfig) -> tuple:
+    poses = np.stack([f.pose for f in frames])
+    turn = float(opposite_turns(poses, config.centre, np.array([index]))[0])
+    travelled = np.array([f.travelled for f in frames])
+    reach = faces_forward(poses) * config.query_travel
+    low, high = sorted((travelled[index], travelled[index] + reach))
+    chosen = spread(travelled, low, high, config.max_frames, index)
+    other = accumulate([frames[i].points for i in chosen], poses[chosen],
+                       turned_about_centre(poses[index], turn, config.centre), config)
+    return map_grid(frames, index, config), other
+
+
 FAMILIES: dict[str, dict[str, Config]] = {
     "ends": {
         "other end's grid gathered on the map's route (default)": Config(),
+        "the same, gathering only the route the map camera faces": FACED,
         "the map camera's grid turned 180 degrees": AS_SEEN,
     },
     "contrast": {f"contrast over {d:g} m{' (default)' if d == 60.0 else ''}":
@@ -106,11 +130,13 @@ class Study:
         self._maps: dict[str, ReferenceMap] = {}
 
     def refmap(self, camera: str, config: Config) -> ReferenceMap:
-        key = json.dumps([camera, dataclasses.asdict(config.layout), dataclasses.asdict(config.motion)], default=str)
+        key = json.dumps([camera, dataclasses.asdict(config.layout), dataclasses.asdict(config.motion),
+                          config is FACED], default=str)
         if key not in self._maps:
             path = self.root / f"map-{len(self._maps)}"
-            build_map(open_traverse(SCENE / camera), path, config, LostDescriber(self.backbone, config.lost),
-                      progress=False)
+            with mock.patch("lostx.core.build.map_grids", _gathered_faced) if config is FACED else nullcontext():
+                build_map(open_traverse(SCENE / camera), path, config, LostDescriber(self.backbone, config.lost),
+                          progress=False)
             self._maps[key] = ReferenceMap.open(path)
         return self._maps[key]
 

@@ -21,6 +21,7 @@ import pytest
 from lostx.core import Config, Localizer, ReferenceMap, build_map
 from lostx.core.config import SequenceConfig
 from lostx.core.describe.describer import LostDescriber
+from lostx.core.geometry import CAMERA_FILE, write_camera_file
 from lostx.evaluation.groundtruth import from_positions
 from lostx.replay.dataset import SourceOptions, open_traverse
 
@@ -384,3 +385,30 @@ def test_an_evaluation_stores_its_queries_layout_and_reads_it_back(scene, maps, 
         assert grid.observed > 100
         assert np.array_equal(read.layout.mask, grid.mask)
         assert np.abs(read.layout.values - grid.values).max() <= 0.5 * 4.0 / 255 + 1e-6
+
+
+def test_plain_folders_with_a_camera_file_find_the_opposite_views_from_their_frames_alone(scene, mosaic, tmp_path):
+    """The paper's setup as frames from elsewhere come: numbered JPEGs and a camera file written from the
+    calibration (the rear camera's without the boot lid's rows: a calibration does not know them), no positions,
+    no odometry, no camera declared. The camera file is read without an option, the motion comes from visual
+    odometry, and the layout finds the figures measured on these folders (README)."""
+    folders = {}
+    for side in ("rear", "front"):
+        source = open_traverse(scene / side)
+        folder = folders[side] = tmp_path / side
+        folder.mkdir()
+        for i, path in enumerate(sorted(p for p in (scene / side).iterdir() if p.suffix == ".jpg")):
+            (folder / f"{i:04d}.jpg").symlink_to(path)
+        write_camera_file(dataclasses.replace(source.geometry, body=0.0), folder / CAMERA_FILE)
+    build_map(open_traverse(folders["rear"]), tmp_path / "map", describer=LostDescriber(mosaic), progress=False)
+    refmap = ReferenceMap.open(tmp_path / "map")
+    assert refmap.stores_other_ends and refmap.progress is not None
+    queries = open_traverse(folders["front"])
+    assert queries.geometry is not None and queries.camera is None and queries.positions is None
+    (truth,) = from_positions(open_traverse(scene / "front", options=LOOK_AT).positions,
+                              open_traverse(scene / "rear", options=LOOK_AT).positions, 7.5)
+    for sequence, expected in ((False, 28), (True, 26)):
+        estimates = _run(refmap, queries, mosaic, sequence=sequence)
+        assert [e.heading for e in estimates].count("opposite") == 40
+        right = truth.is_correct(np.array([e.match_index for e in estimates]))
+        assert (int(right[truth.has_match].sum()), int(truth.has_match.sum())) == (expected, 34)

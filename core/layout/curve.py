@@ -21,6 +21,14 @@ STEP = 0.5
 """Metres between the route points searched for the other end's camera."""
 
 
+def faces_forward(poses: np.ndarray) -> float:
+    """+1 where the camera at ``poses`` ((N, 3) ground poses along a route, in order) faces the way it moves (a
+    front camera: the road it views lies ahead along the route), -1 where it faces back (a rear camera)."""
+    poses = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
+    moved = np.diff(poses[:, :2], axis=0)
+    return 1.0 if np.sum(moved[:, 0] * np.cos(poses[:-1, 2]) + moved[:, 1] * np.sin(poses[:-1, 2])) >= 0 else -1.0
+
+
 def opposite_turns(poses: np.ndarray, centre: float, rows: np.ndarray | None = None) -> np.ndarray:
     """Degrees, anticlockwise seen from above: how much the camera viewing map frame ``rows``' (default all)
     centre point from the other end of its stretch is turned beyond 180 degrees from that frame's camera.
@@ -35,9 +43,7 @@ def opposite_turns(poses: np.ndarray, centre: float, rows: np.ndarray | None = N
         return np.zeros(len(rows))
     along = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(poses[:, :2], axis=0).T))])
     heading = np.unwrap(poses[:, 2])
-    moved = np.diff(poses[:, :2], axis=0)
-    # A camera that faces the way it moves (a front camera) views the road ahead of it, else behind it.
-    ahead = 1.0 if np.sum(moved[:, 0] * np.cos(poses[:-1, 2]) + moved[:, 1] * np.sin(poses[:-1, 2])) >= 0 else -1.0
+    ahead = faces_forward(poses)
     # The route points searched for each row, beyond the route's ends along its first and last headings.
     s = along[rows, None] + ahead * 2.0 * centre + np.arange(-centre, centre + STEP / 2, STEP)
     yaw = np.interp(s, along, heading)
