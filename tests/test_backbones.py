@@ -182,6 +182,18 @@ def test_presets_resolve_against_each_model():
         preset_classes("indoor", CITYSCAPES_CLASSES)
     with pytest.raises(InputError, match="unknown class preset 'garden'"):
         preset_classes("garden", ADE20K_CLASSES)
+    # A model described with ADE20K's published names (synonyms after the class's own) or Mapillary Vistas' paths:
+    # the groups keep the model's own names.
+    published = ("wall", "building;edifice", "sky", "tree", "road;route", "sidewalk;pavement", "earth;ground",
+                 "streetlight;street;lamp", "plant;flora;plant;life")
+    assert preset_classes("street", published) == {
+        "road": ("road;route", "sidewalk;pavement", "earth;ground"), "building": ("building;edifice", "wall"),
+        "vegetation": ("tree", "plant;flora;plant;life")}
+    vistas = ("construction--flat--road", "construction--structure--building", "nature--vegetation",
+              "construction--flat--sidewalk")
+    assert preset_classes("street", vistas) == {
+        "road": ("construction--flat--road", "construction--flat--sidewalk"),
+        "building": ("construction--structure--building",), "vegetation": ("nature--vegetation",)}
 
 
 def test_coverage_warning_once_naming_what_dominates(robotcar, mosaic):

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from lostx.core.config import Config, LayoutConfig
-from lostx.core.layout.classes import CHANNELS, OBJECT, ROAD, LayoutClasses
+from lostx.core.layout.classes import CHANNELS, CONTACTS, GROUND, OBJECT, ROAD, LayoutClasses
 from lostx.core.layout.compare import GridStack, shifted, similarities, similarity
 from lostx.core.layout.curve import opposite_turns, turned_about_centre
 from lostx.core.layout.describer import FramePlacer, LiveLayout, Placed, map_grid, spread
@@ -294,6 +294,34 @@ def test_frames_gathered_land_where_each_pose_puts_them(rng):
         inside = (a >= 0) & (a < rows) & (x >= 0) & (x < cols)
         expected += np.bincount((kind[inside] * rows + a[inside]) * cols + x[inside], weight[inside], len(expected))
     assert np.array_equal(cell_weights(frames, here, 3, config), expected)
+
+
+def test_class_roles_are_found_however_a_model_spells_its_names():
+    """ADE20K's published names list synonyms, the class's own first ("streetlight;street;lamp" is a lamp, not the
+    street); Mapillary Vistas' are paths, the last step the class (a marking's path ends in its shape)."""
+    ade = ["wall", "building;edifice", "sky", "tree", "road;route", "sidewalk;pavement",
+           "person;individual;someone;somebody;mortal;soul", "earth;ground", "car;auto;automobile;machine;motorcar",
+           "streetlight;street;lamp"]
+    vistas = ["construction--flat--road", "construction--flat--sidewalk", "marking--discrete--arrow--left",
+              "object--vehicle--car", "nature--vegetation", "nature--sky", "construction--structure--building",
+              "object--support--pole", "human--person"]
+    contact = {name: i for i, name in enumerate(CONTACTS)}
+    for names, expected in (
+        (ade, [(OBJECT, "building", False), (OBJECT, "building", False), (-1, "other", False),
+               (OBJECT, "vegetation", False), (ROAD, "other", False), (GROUND, "other", False),
+               (OBJECT, "other", True), (GROUND, "other", False), (OBJECT, "vehicle", True),
+               (OBJECT, "other", False)]),
+        (vistas, [(ROAD, "other", False), (GROUND, "other", False), (ROAD, "other", False),
+                  (OBJECT, "vehicle", True), (OBJECT, "vegetation", False), (-1, "other", False),
+                  (OBJECT, "building", False), (OBJECT, "other", False), (OBJECT, "other", True)]),
+    ):
+        classes = LayoutClasses.of_model(names)
+        assert classes is not None
+        found = [(int(classes.ray[i]), CONTACTS[classes.contact[i]], bool(classes.is_mover[i]))
+                 for i in range(len(names))]
+        assert found == expected
+        assert all(contact[kind] == classes.contact[i] for i, (_, kind, _) in enumerate(expected))
+    assert LayoutClasses.of_model(["streetlight;street;lamp", "sky", "building"]) is None  # no road: no layout
 
 
 def test_frames_are_chosen_evenly_over_the_distance():

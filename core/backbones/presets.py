@@ -2,13 +2,15 @@
 
 A preset lists, for each descriptor class, the class names different training
 sets use for it (ADE20K says tree, plant and grass where Cityscapes says
-vegetation); a model's groups keep the names it has.
+vegetation); a model's groups keep the names it has, however it spells them
+(``class_terms``: "road;route", "construction--flat--road").
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 
+from ..describe.classes import class_terms
 from ..errors import InputError
 
 PRESETS: dict[str, dict[str, tuple[str, ...]]] = {
@@ -32,8 +34,10 @@ def preset_classes(preset: str, class_names: Sequence[str]) -> dict[str, tuple[s
     """The preset's descriptor classes as groups of the model's classes; an error names a group the model lacks."""
     if preset not in PRESETS:
         raise InputError(f"unknown class preset '{preset}'; presets: {', '.join(PRESETS)}")
-    have = set(class_names)
-    groups = {group: tuple(name for name in names if name in have) for group, names in PRESETS[preset].items()}
+    # A model's class stands for a preset's name when it is what the class is called (``class_terms``' first).
+    called = [(class_terms(name)[0], name) for name in class_names]
+    groups = {group: tuple(own for name in names for term, own in called if term == name)
+              for group, names in PRESETS[preset].items()}
     missing = [group for group, members in groups.items() if not members]
     if missing:
         wanted = "; ".join(f"{group}: {' or '.join(PRESETS[preset][group])}" for group in missing)

@@ -1,8 +1,9 @@
 """What the layout needs to know of a segmentation model's classes: which are the road, other ground and
 the sky, and what kind of thing each other class is where it stands on the ground.
 
-Roles are found by the models' own class names (ADE20K's and Cityscapes' vocabularies, and the usual
-synonyms), so any model whose classes are named works; a model without a road class has no layout.
+Roles are found by the models' own class names (ADE20K's, Cityscapes' and Mapillary Vistas' vocabularies, and
+the usual synonyms, however a model spells them: :func:`lostx.core.describe.classes.class_terms`), so any model
+whose classes are named works; a model without a road class has no layout.
 """
 
 from __future__ import annotations
@@ -10,6 +11,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+
+from ..describe.classes import class_terms
 
 ROAD, GROUND, OBJECT = 0, 1, 2
 """What a ray that meets the road plane landed on (the rays of sky pixels do not count)."""
@@ -20,9 +23,12 @@ CHANNELS = ("road", "ground", *CONTACTS)
 metres of each kind of thing touching the ground there (log(1 + metres))."""
 
 _NAMES = {
-    "road": ("road", "street", "highway", "driveway", "lane"),
+    # Paint on the road is road: a marking's ray lands on the road plane, and it stands on nothing.
+    "road": ("road", "street", "highway", "driveway", "lane", "crosswalk", "crosswalk plain", "crosswalk zebra",
+             "marking", "lane marking", "road marking", "bike lane", "service lane"),
     "ground": ("sidewalk", "earth", "grass", "field", "floor", "rug", "terrain", "parking", "sand", "dirt",
-               "path", "runway", "gravel", "pavement", "ground"),
+               "path", "runway", "gravel", "pavement", "ground", "curb", "curb cut", "land", "soil",
+               "pedestrian area"),
     "sky": ("sky",),
     "building": ("building", "wall", "house", "fence", "door", "windowpane", "window", "ceiling", "cabinet",
                  "painting", "shelf", "mirror", "skyscraper", "bridge", "tower"),
@@ -57,7 +63,8 @@ class LayoutClasses:
         for role, names in _NAMES.items():
             for name in names:
                 role_of.setdefault(name, role)
-        roles = [role_of.get(str(name).strip().lower(), "other") for name in class_names]
+        terms = [class_terms(name) for name in class_names]
+        roles = [next((role_of[term] for term in called if term in role_of), "other") for called in terms]
         if "road" not in roles:
             return None
         ray = np.full(256, OBJECT, dtype=np.int8)
@@ -72,6 +79,6 @@ class LayoutClasses:
             if role in CONTACTS:
                 contact[i] = CONTACTS.index(role)
         movers = np.zeros(256, dtype=bool)
-        movers[[i for i, name in enumerate(class_names) if str(name).strip().lower() in _MOVERS]] = True
+        movers[[i for i, called in enumerate(terms) if any(term in _MOVERS for term in called)]] = True
         return cls(ray=ray, contact=contact, is_ground=(ray == ROAD) | (ray == GROUND), is_sky=ray == -1,
                    is_mover=movers)
