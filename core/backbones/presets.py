@@ -10,8 +10,8 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from ..describe.classes import class_terms
 from ..errors import InputError
+from .names import class_terms
 
 PRESETS: dict[str, dict[str, tuple[str, ...]]] = {
     # Each of the paper's three classes takes in the classes that stand for the same thing in a street:

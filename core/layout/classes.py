@@ -2,7 +2,7 @@
 the sky, and what kind of thing each other class is where it stands on the ground.
 
 Roles are found by the models' own class names (ADE20K's, Cityscapes' and Mapillary Vistas' vocabularies, and
-the usual synonyms, however a model spells them: :func:`lostx.core.describe.classes.class_terms`), so any model
+the usual synonyms, however a model spells them: :func:`lostx.core.backbones.names.class_terms`), so any model
 whose classes are named works; a model without a road class has no layout.
 """
 
@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..describe.classes import class_terms
+from ..backbones.names import class_terms
 
 ROAD, GROUND, OBJECT = 0, 1, 2
 """What a ray that meets the road plane landed on (the rays of sky pixels do not count)."""
