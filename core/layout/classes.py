@@ -25,7 +25,7 @@ metres of each kind of thing touching the ground there (log(1 + metres))."""
 _NAMES = {
     # Paint on the road is road: a marking's ray lands on the road plane, and it stands on nothing.
     "road": ("road", "street", "highway", "driveway", "lane", "crosswalk", "crosswalk plain", "crosswalk zebra",
-             "marking", "lane marking", "road marking", "bike lane", "service lane"),
+             "marking", "marking only", "lane marking", "road marking", "bike lane", "service lane"),
     "ground": ("sidewalk", "earth", "grass", "field", "floor", "rug", "terrain", "parking", "sand", "dirt",
                "path", "runway", "gravel", "pavement", "ground", "curb", "curb cut", "land", "soil",
                "pedestrian area"),
