@@ -120,6 +120,12 @@ class _Held:
     placed: Placed | None
 
 
+def held_for_layout(layout: LayoutConfig) -> int:
+    """Frames on each side of a map frame held for its layout grids (its gathering and the route around its other
+    end, :func:`route_reach`), and so described around a range of a traverse: bounded, to bound a build's memory."""
+    return 4 * layout.max_frames
+
+
 def _windowed(
     frames: Iterable[Frame], describe: Callable[[np.ndarray], DescribedFrame], geometry: Geometry, window: int,
     emit_from: int = 0, placer: FramePlacer | None = None, layout: LayoutConfig | None = None,
@@ -133,10 +139,10 @@ def _windowed(
 
     Frames stream through: frame j is finished once frame j + window // 2 has been described and, for the
     layout, once the route held reaches far enough beyond it for its other end (:func:`route_reach`) or
-    ``4 * max_frames`` frames, so at most that many frames are held at a time.
+    :func:`held_for_layout` frames, so at most that many frames are held at a time.
     """
     half = window // 2
-    reach = 4 * layout.max_frames if placer is not None and layout is not None else 0
+    reach = held_for_layout(layout) if placer is not None and layout is not None else 0
     held: deque[_Held] = deque()
     done = emit_from
 
@@ -203,7 +209,7 @@ def describe_range(frames: Iterable[Frame] | FrameSource, start: int, stop: int 
                                      describer.backbone.info)
     n_labels = len(describer.groups.label_names)
     placer = layout_placer(config, describer)
-    margin = max(config.lost.reference_window // 2, 4 * config.layout.max_frames if placer is not None else 0)
+    margin = max(config.lost.reference_window // 2, held_for_layout(config.layout) if placer is not None else 0)
     first = max(0, start - margin)
     cut = (frame for _, frame in _cut(frames, first, None if stop is None else stop + margin))
     described = _windowed(cut, describer, geometry, config.lost.reference_window, start - first, placer,

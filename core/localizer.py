@@ -76,7 +76,6 @@ from .route.tracker import RouteTracker
 WINDOW_PICTURE_WIDTH = 15
 
 
-
 def contrast_references(route: np.ndarray, metres: float) -> int:
     """The contrast neighbourhood, in references, that spans ``metres`` of a map's route (``route``: metres along
     it at each frame) at its median frame spacing; at least 2, at most the whole map."""
@@ -85,6 +84,7 @@ def contrast_references(route: np.ndarray, metres: float) -> int:
     if spacing <= 0.0:
         return max(2, len(route))
     return int(min(max(2, round(metres / spacing)), max(2, len(route))))
+
 
 class Localizer:
     """Stateful place recognition over a stream of frames from one camera."""

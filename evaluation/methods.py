@@ -194,10 +194,10 @@ def _save_descriptions(path: Path, items: list[QueryDescription]) -> None:
     }
     if all(d.layout is not None for d in items):
         grids = [as_grid(d.layout) for d in items]  # type: ignore[arg-type]
-        packed = [pack(grid) for grid in grids]  # type: ignore[arg-type]
+        packed = [pack(grid) for grid in grids]
         arrays["layout_values"] = np.stack([v for v, _ in packed])
         arrays["layout_mask"] = np.stack([m for _, m in packed])
-        arrays["layout_shape"] = np.array(grids[0].mask.shape)  # type: ignore[union-attr]
+        arrays["layout_shape"] = np.array(grids[0].mask.shape)
     tmp = path.with_name(path.name + ".partial.npz")
     np.savez(tmp, **arrays)
     tmp.replace(path)
