@@ -138,7 +138,8 @@ def test_the_layout_is_drawn_as_it_fits_the_answer(scene, maps, mosaic):
         drawn = similarity(view.query, answer, weights, 0, 25)[0]
         as_seen = similarity(scores.query.turned(), answer, weights, 0, 25)[0]  # the grid as its camera saw it
         assert drawn >= as_seen - 1e-6
-        assert drawn == pytest.approx(scores.every()[estimate.match_index], abs=1e-4)
+        # The comparison with the map's levels rounds the query's values to whole levels (query_levels).
+        assert drawn == pytest.approx(scores.every()[estimate.match_index], abs=1e-3)
         moved += bool(view.turn or view.shift)
     assert moved >= len(frames) // 2, moved
 

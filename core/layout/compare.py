@@ -14,6 +14,9 @@ no similarity at all (-inf).
 The map grid's own sums n, S_y and S_yy run over the cells the query observed, nearly all of them: they are
 the grid's totals less its cells the query did not observe (or, for a query that observed few, the sums over
 those it did), so that a comparison reads only a few of the map's cells for them, and no squares at all.
+
+Against a map's grids (one-byte levels) the query's values are made whole numbers too (:func:`query_levels`):
+every sum is then exact, so a comparison gives the same bits whatever BLAS, thread count or CPU computes it.
 """
 
 from __future__ import annotations
@@ -55,6 +58,9 @@ class GridStack:
     def _set(self, grids: np.ndarray, cells: np.ndarray, scale: np.ndarray, totals: np.ndarray,
              square_totals: np.ndarray) -> None:
         self.n, self.channels = grids.shape[0], grids.shape[1] - 1
+        self.levels = grids.dtype == np.uint8
+        """Whether the values are one-byte levels (a map's): the query's are then made whole numbers too
+        (:func:`query_levels`), and every sum of a comparison is exact."""
         self.grids = grids
         """(N, 1 + C, P) each grid's mask and values: a subset of the grids is a gather of whole rows."""
         self.cells = cells
@@ -121,6 +127,8 @@ def correlations(variants: Sequence[LayoutGrid], maps: GridStack, weights: np.nd
     c = maps.channels
     m = np.stack([g.mask.ravel() for g in variants]).astype(np.float32)  # (V, P)
     q = np.stack([g.values.reshape(c, -1) for g in variants]).astype(np.float32) * m[:, None, :]  # (V, C, P)
+    if maps.levels:
+        q = query_levels(q, m)
     n, sy, syy = observed_sums(maps, m)
     sx, sxx, sxy = query_sums(maps, q)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -169,6 +177,8 @@ def refined(views: Sequence[LayoutGrid], maps: GridStack, rows: np.ndarray, weig
     integers) are summed in float64."""
     variants = _variants(views, shifts, turns, whole)  # (H, V, 1 + C, P)
     m, q = variants[:, :, 0], variants[:, :, 1:]
+    if maps.levels:
+        q = query_levels(q, m)
     h, v, c, p = q.shape
     k = rows.shape[1]
     cells = np.ascontiguousarray(maps.grids[rows].transpose(0, 2, 1, 3), dtype=np.float32)  # (H, 1 + C, K, P)
@@ -240,8 +250,8 @@ def query_sums(maps: GridStack, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, 
     sums and sums of squares over each map grid's observed cells, and their products with its values.
 
     Each product has the map grid as a row of the left operand and both operands transposed (what BLAS is given),
-    over blocks of two grids or more, so that every map grid's sums are computed alike, wherever it lies in the
-    stack: identical grids tie exactly."""
+    over blocks of two grids or more, so that every map grid's sums are computed alike wherever it lies in the stack:
+    exactly against a map's levels (:func:`query_levels`), to float32's rounding against other values."""
     v, c, p = q.shape
     own_right = np.concatenate([q, q * q], axis=1).reshape(2 * v * c, p).T  # (P, 2VC)
     cross_right = np.ascontiguousarray(q.transpose(1, 0, 2)).transpose(0, 2, 1)  # (C, P, V)
@@ -260,6 +270,27 @@ def query_sums(maps: GridStack, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, 
 def _grid_last(sums: np.ndarray) -> np.ndarray:
     """(C, N, V) float32 sums as (V, C, N) float64, contiguous for the arithmetic that follows."""
     return np.ascontiguousarray(sums.transpose(2, 0, 1), dtype=np.float64)
+
+
+EXACT = 2**24
+"""float32 holds every whole number below this: sums of whole numbers below it come out exact in any order."""
+
+
+def query_levels(q: np.ndarray, m: np.ndarray) -> np.ndarray:
+    """(..., V, C, P) a query's values (its variants', zero where mask ``m`` (..., V, P) is) as whole numbers: each
+    channel's observed values mapped onto 0 to L by one increasing affine map, which no correlation sees, with L as
+    large as keeps every sum of a comparison with one-byte map levels exact in float32 (P L^2 and 255 P L below
+    :data:`EXACT`: 219 levels on a 20 x 15 grid). The sums then do not depend on the order BLAS adds in, which its
+    kernels choose by a map grid's place in a product, by the thread count and by the CPU: every map grid gets the
+    same bits wherever it lies, by a thread or in another process, on any machine."""
+    cells = q.shape[-1]
+    top = min(255, (EXACT - 1) // (255 * cells), int(np.sqrt((EXACT - 1) / cells)))
+    seen = m[..., None, :] > 0
+    low = np.where(seen, q, np.inf).min(axis=(-3, -1), keepdims=True)
+    span = np.where(seen, q, -np.inf).max(axis=(-3, -1), keepdims=True) - low
+    usable = np.isfinite(span) & (span > 0)
+    unit = np.where(usable, top / np.where(usable, span, 1.0), 0.0)
+    return (np.rint((q - np.where(usable, low, 0.0)) * unit) * m[..., None, :]).astype(np.float32)
 
 
 BLOCK = 128
