@@ -13,9 +13,9 @@ import hashlib
 import json
 import time
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Callable, Iterable, Iterator, Protocol, Sequence
+from typing import Callable, Iterable, Iterator, Protocol, Sequence, TypeVar
 
 import numpy as np
 from tqdm import tqdm
@@ -121,51 +121,48 @@ class _Held:
 
 
 def held_for_layout(layout: LayoutConfig) -> int:
-    """Frames on each side of a map frame held for its layout grids (its gathering and the route around its other
-    end, :func:`route_reach`), and so described around a range of a traverse: bounded, to bound a build's memory."""
+    """Frames described before a range of a traverse for the route behind its first frames' layout grids (their
+    gathering and the route around their other end, :func:`route_reach`). A whole traverse's build holds the route
+    as far back as the grids need, whatever the frame rate."""
     return 4 * layout.max_frames
+
+
+def waiting_for_layout(layout: LayoutConfig) -> int:
+    """Described map frames waiting at most for the route ahead of them to reach as far as their layout grids need
+    (at 30 frames a second and 7 m/s, 50 m): held as the map stores them, so that a build's memory stays bounded
+    where the vehicle stands still."""
+    return 16 * layout.max_frames
+
+
+def route_spacing(layout: LayoutConfig) -> float:
+    """Metres apart the route held for the map's layout grids keeps its frames: four to choose from for each frame a
+    grid gathers, whatever the frame rate."""
+    return layout.map_travel / (2 * layout.max_frames)
 
 
 def _windowed(
     frames: Iterable[Frame], describe: Callable[[np.ndarray], DescribedFrame], geometry: Geometry, window: int,
-    emit_from: int = 0, placer: FramePlacer | None = None, layout: LayoutConfig | None = None,
-) -> Iterator[tuple[int, Frame, DescribedFrame, np.ndarray, Placed | None,
-                    tuple[LayoutGrid, LayoutGrid] | None]]:
-    """Yield each frame (from the ``emit_from``-th on; those before only lend their class means and layout)
-    with its class means averaged over a centred window, clipped at the ends of ``frames``, and, with a
-    ``placer``, its placement and layout grids (:func:`map_grids`: as its camera and as the other end of its
-    stretch views it) from the frames within ``layout.map_travel`` metres of it and the route around it. Each
-    image is fitted to the backbone by ``geometry`` for the camera its frame declares.
+    placer: FramePlacer | None = None,
+) -> Iterator[tuple[int, Frame, DescribedFrame, np.ndarray, Placed | None]]:
+    """Yield each frame with its class means averaged over a centred window, clipped at the ends of ``frames``, and,
+    with a ``placer``, its placement on the road (None where it has none). Each image is fitted to the backbone by
+    ``geometry`` for the camera its frame declares.
 
-    Frames stream through: frame j is finished once frame j + window // 2 has been described and, for the
-    layout, once the route held reaches far enough beyond it for its other end (:func:`route_reach`) or
-    :func:`held_for_layout` frames, so at most that many frames are held at a time.
+    Frames stream through: frame j is finished once frame j + window // 2 has been described, so at most
+    window // 2 + 1 frames are held at a time.
     """
     half = window // 2
-    reach = held_for_layout(layout) if placer is not None and layout is not None else 0
     held: deque[_Held] = deque()
-    done = emit_from
+    done = 0
 
-    def ready(j: int, newest: int) -> bool:
-        if newest - j < half:
-            return False
-        item = held[j - held[0].index]
-        if item.placed is None or layout is None or newest - j >= reach:
-            return True
-        return held[-1].placed is not None and held[-1].placed.travelled >= item.placed.travelled + route_reach(layout)
-
-    def finish(j: int, length: int):  # noqa: ANN202 (the tuple yielded)
+    def finish(j: int, length: int) -> tuple[int, Frame, DescribedFrame, np.ndarray, Placed | None]:
         span = centred_window(j, length, window)
         chosen = [h.described for h in held if span.start <= h.index < span.stop]
         mu, _ = window_means(np.stack([d.means for d in chosen]), np.stack([d.present for d in chosen]))
         item = held[j - held[0].index]
-        grid = None
-        if item.placed is not None and layout is not None:
-            placed = [h for h in held if h.placed is not None]
-            grid = map_grids([h.placed for h in placed], placed.index(item), layout)  # type: ignore[misc]
-        while held and held[0].index < j + 1 - max(half, reach):
+        while held and held[0].index < j + 1 - half:
             held.popleft()
-        return j, item.frame, item.described, mu, item.placed, grid
+        return j, item.frame, item.described, mu, item.placed
 
     count = 0
     for i, frame in enumerate(frames):
@@ -176,12 +173,56 @@ def _windowed(
             placed = placer(frame, described.label_map, box)
         held.append(_Held(i, frame, described, placed))
         count = i + 1
-        while done < count and ready(done, i):
+        while done < count and i - done >= half:
             yield finish(done, count)
             done += 1
     while done < count:
         yield finish(done, count)
         done += 1
+
+
+Item = TypeVar("Item")
+
+
+def _with_grids(items: Iterable[tuple[int, Item, Placed | None]], layout: LayoutConfig,
+                ) -> Iterator[tuple[int, Item, tuple[LayoutGrid, LayoutGrid] | None]]:
+    """Each map frame's item (in order) with its layout grids (:func:`map_grids`: as its camera and as the other end
+    of its stretch views it; None where the frame was not placed), once the route reaches :func:`route_reach`
+    metres beyond it, :func:`waiting_for_layout` items wait, or the frames end.
+
+    The route is held as the frames' placements :func:`route_spacing` apart (each waiting frame's own among them),
+    as far back as the oldest waiting frame's grids reach: what the grids gather is set in metres, so a densely
+    recorded traverse gives the grids a sparse one gives, and the memory held does not grow with the frame rate.
+    """
+    reach, spacing, limit = route_reach(layout), route_spacing(layout), waiting_for_layout(layout)
+    route: deque[tuple[int, Placed]] = deque()
+    waiting: deque[tuple[int, Item, Placed | None]] = deque()
+
+    def finish() -> tuple[int, Item, tuple[LayoutGrid, LayoutGrid] | None]:
+        j, item, placed = waiting.popleft()
+        grids = None
+        if placed is not None:
+            around = dict(route)
+            around[j] = placed
+            order = sorted(around)
+            grids = map_grids([around[i] for i in order], order.index(j), layout)
+        oldest = next((p for _, _, p in waiting if p is not None), None)
+        while route and oldest is not None and route[0][1].travelled < oldest.travelled - reach - 1e-9:
+            route.popleft()
+        return j, item, grids
+
+    for j, item, placed in items:
+        if placed is not None:
+            if len(route) > 1 and route[-1][1].travelled - route[-2][1].travelled < spacing:
+                route.pop()  # the newest kept lies within the spacing of the one before: this frame takes its place
+            route.append((j, placed))
+        waiting.append((j, item, placed))
+        newest = route[-1][1].travelled if route else None
+        while waiting and (waiting[0][2] is None or len(waiting) > limit
+                           or (newest is not None and newest >= waiting[0][2].travelled + reach)):
+            yield finish()
+    while waiting:
+        yield finish()
 
 
 def layout_placer(config: Config, describer: LostDescriber) -> FramePlacer | None:
@@ -198,7 +239,9 @@ def describe_range(frames: Iterable[Frame] | FrameSource, start: int, stop: int 
     """Map frames ``start`` to ``stop`` of a traverse (None: to its end), with their map indices.
 
     A LoST frame's class means need the ``lost.reference_window // 2`` frames on each side: those are
-    described too (and no others), so any range gives the frames a whole-traverse build gives.
+    described too (and no others), so any range gives the frames a whole-traverse build gives. Its layout grids
+    need the route around it: a range is described from :func:`held_for_layout` frames before it (on a traverse
+    with frames less than a metre apart, a range's first grids then gather less behind them than a whole build's).
     """
     if isinstance(describer, ThumbnailDescriber):
         for index, frame in _cut(frames, start, stop):
@@ -209,21 +252,33 @@ def describe_range(frames: Iterable[Frame] | FrameSource, start: int, stop: int 
                                      describer.backbone.info)
     n_labels = len(describer.groups.label_names)
     placer = layout_placer(config, describer)
-    margin = max(config.lost.reference_window // 2, held_for_layout(config.layout) if placer is not None else 0)
-    first = max(0, start - margin)
-    cut = (frame for _, frame in _cut(frames, first, None if stop is None else stop + margin))
-    described = _windowed(cut, describer, geometry, config.lost.reference_window, start - first, placer,
-                          config.layout)
-    for j, frame, desc, mu, placed, grid in described:
+    half = config.lost.reference_window // 2
+    behind, ahead = (held_for_layout(config.layout), waiting_for_layout(config.layout)) if placer else (0, 0)
+    first = max(0, start - max(half, behind))
+    cut = (frame for _, frame in _cut(frames, first, None if stop is None else stop + max(half, ahead)))
+
+    def wanted(index: int) -> bool:
+        return index >= start and (stop is None or index < stop)
+
+    # The evidence as a map stores it, made as soon as the class means are known: the frame's whole features are
+    # not held while its layout waits for the route ahead, nor until its chunk is packed.
+    stored = ((j, _map_frame(describer, frame, desc, mu, placed, n_labels) if wanted(first + j) else None, placed)
+              for j, frame, desc, mu, placed in _windowed(cut, describer, geometry, config.lost.reference_window,
+                                                          placer))
+    gridded = _with_grids(stored, config.layout) if placer is not None else ((j, f, None) for j, f, _ in stored)
+    for j, frame, grids in gridded:
         index = first + j
         if stop is not None and index >= stop:
             break
-        # The evidence as a map stores it: the frame's whole features are not held until its chunk is packed.
-        yield index, MapFrame(frame.name, describer.descriptor(desc, mu), desc.evidence.sparse(), desc.appearance(),
-                              frame.position, frame.timestamp, looks(frame.image),
-                              label_frequencies(desc.labels, n_labels), frame.camera,
-                              layout=pack_both(*grid) if grid is not None else None,
-                              step=placed.step if placed is not None else None)
+        if frame is not None:
+            yield index, frame if grids is None else replace(frame, layout=pack_both(*grids))
+
+
+def _map_frame(describer: LostDescriber, frame: Frame, desc: DescribedFrame, mu: np.ndarray, placed: Placed | None,
+               n_labels: int) -> MapFrame:
+    return MapFrame(frame.name, describer.descriptor(desc, mu), desc.evidence.sparse(), desc.appearance(),
+                    frame.position, frame.timestamp, looks(frame.image), label_frequencies(desc.labels, n_labels),
+                    frame.camera, step=placed.step if placed is not None else None)
 
 
 def _cut(frames: Iterable[Frame] | FrameSource, start: int, stop: int | None) -> Iterator[tuple[int, Frame]]:

@@ -91,7 +91,7 @@ def test_streamed_reference_window_equals_brute_force(rng, n, window):
     as_is = Geometry(CameraConfig(), None, "squash", None)
     out = list(_windowed(frames, lambda image: lookup[id(image)], as_is, window))
     assert [(j, f.id) for j, f, *_ in out] == [(i, i) for i in range(n)]
-    for j, (_, _, d, mu, _, _) in enumerate(out):
+    for j, (_, _, d, mu, _) in enumerate(out):
         span = centred_window(j, n, window)
         chosen = described[span.start : span.stop]
         expected, _ = window_means(np.stack([c.means for c in chosen]), np.stack([c.present for c in chosen]))
