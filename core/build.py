@@ -181,11 +181,11 @@ def _windowed(
         done += 1
 
 
-Item = TypeVar("Item")
+_Item = TypeVar("_Item")
 
 
-def _with_grids(items: Iterable[tuple[int, Item, Placed | None]], layout: LayoutConfig,
-                ) -> Iterator[tuple[int, Item, tuple[LayoutGrid, LayoutGrid] | None]]:
+def _with_grids(items: Iterable[tuple[int, _Item, Placed | None]], layout: LayoutConfig,
+                ) -> Iterator[tuple[int, _Item, tuple[LayoutGrid, LayoutGrid] | None]]:
     """Each map frame's item (in order) with its layout grids (:func:`map_grids`: as its camera and as the other end
     of its stretch views it; None where the frame was not placed), once the route reaches :func:`route_reach`
     metres beyond it, :func:`waiting_for_layout` items wait, or the frames end.
@@ -196,9 +196,9 @@ def _with_grids(items: Iterable[tuple[int, Item, Placed | None]], layout: Layout
     """
     reach, spacing, limit = route_reach(layout), route_spacing(layout), waiting_for_layout(layout)
     route: deque[tuple[int, Placed]] = deque()
-    waiting: deque[tuple[int, Item, Placed | None]] = deque()
+    waiting: deque[tuple[int, _Item, Placed | None]] = deque()
 
-    def finish() -> tuple[int, Item, tuple[LayoutGrid, LayoutGrid] | None]:
+    def finish() -> tuple[int, _Item, tuple[LayoutGrid, LayoutGrid] | None]:
         j, item, placed = waiting.popleft()
         grids = None
         if placed is not None:
