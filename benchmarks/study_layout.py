@@ -20,6 +20,7 @@ import tempfile
 import warnings
 from contextlib import nullcontext
 from pathlib import Path
+from typing import Callable
 from unittest import mock
 
 import numpy as np
@@ -29,7 +30,8 @@ from lostx.core import Config, Localizer, LostDescriber, ReferenceMap, build_map
 from lostx.core.config import LayoutConfig
 from lostx.core.layout.curve import faces_forward, opposite_turns, turned_about_centre
 from lostx.core.layout.describer import map_grid, spread
-from lostx.core.layout.grid import accumulate
+from lostx.core.layout.grid import Gathering, accumulate
+from lostx.core.match.combined import CombinedScores, LayoutScores
 from lostx.core.match.matcher import PlaceMatcher
 from lostx.core.paths import data_dir
 from lostx.replay.dataset import SourceOptions, open_traverse
@@ -68,6 +70,40 @@ def _gathered_faced(frames: list, index: int, config: LayoutConfig) -> tuple:
     return map_grid(frames, index, config), other
 
 
+GATHERED = dataclasses.replace(Config(), layout=dataclasses.replace(Config().layout))
+"""The defaults, with the layout's weight times the metres the query's grid gathered over ``query_travel`` (from a
+quarter, a frame alone, to 1) (told apart by identity)."""
+
+OBSERVED = dataclasses.replace(Config(), layout=dataclasses.replace(Config().layout))
+"""The defaults, with the layout's weight times the square of the cells the query's grid observed over the map grids'
+median (at most 1) (told apart by identity)."""
+
+
+def _weighted_combine(share: Callable[[LayoutScores], float]) -> Callable:
+    """:meth:`CombinedScores._combine` with the layout's weight times ``share`` of the frame's comparison."""
+    def combine(self: CombinedScores, lost: np.ndarray, layout: np.ndarray) -> np.ndarray:
+        (lm, ls), (ym, ys) = self._lost_moments, self._layout_moments
+        layout = np.where(np.isfinite(layout), layout, self._floor)
+        return (lost - lm) / ls - self.weight * share(self.layout) * (layout - ym) / ys
+    return combine
+
+
+def _gathered_share(scores: LayoutScores) -> float:
+    source = scores.comparison.source
+    if not isinstance(source, Gathering) or not len(source.poses):
+        return 1.0
+    reach = float(np.hypot(*(source.poses[:, :2] - source.current[:2]).T).max())
+    return max(0.25, min(1.0, reach / source.config.query_travel))
+
+
+def _observed_share(scores: LayoutScores) -> float:
+    comparison = scores.comparison
+    return min(1.0, comparison.views[0].observed / float(np.median(comparison.maps.totals[0]))) ** 2
+
+
+SHARES = {id(GATHERED): _gathered_share, id(OBSERVED): _observed_share}
+
+
 FAMILIES: dict[str, dict[str, Config]] = {
     "ends": {
         "other end's grid gathered on the map's route (default)": Config(),
@@ -83,6 +119,11 @@ FAMILIES: dict[str, dict[str, Config]] = {
         "layout weight 3 (default)": Config(),
         "layout weight 4": variant(layout=dict(weight=4.0)),
         "the layout alone": variant(layout=dict(weight=100.0)),
+    },
+    "gathered": {
+        "layout weight 3 (default)": Config(),
+        "times the metres gathered, from a quarter": GATHERED,
+        "times the cells observed, squared": OBSERVED,
     },
     "window": {f"distance window {d:g} m": variant(sequence=dict(distance_window=d)) for d in (30.0, 45.0, 60.0, 1000.0)},
     "follow": {
@@ -143,6 +184,9 @@ class Study:
     def run(self, config: Config) -> dict[str, dict[str, list[int]]]:
         if config is AS_SEEN:
             with mock.patch.object(ReferenceMap, "stores_other_ends", new=property(lambda self: False)):
+                return self._run(config)
+        if id(config) in SHARES:
+            with mock.patch.object(CombinedScores, "_combine", _weighted_combine(SHARES[id(config)])):
                 return self._run(config)
         return self._run(config)
 
