@@ -30,7 +30,7 @@ from .describe.thumbnail import ThumbnailDescriber
 from .errors import MapError
 from .frame import Frame
 from .layout.classes import LayoutClasses
-from .layout.describer import FramePlacer, Placed, map_grids, route_reach
+from .layout.describer import FramePlacer, Placed, keep_apart, map_grids, route_reach
 from .layout.grid import LayoutGrid, pack_both
 from .localizer import calibrate
 from .maps.checkpoint import BuildCheckpoint, missing_ranges
@@ -213,9 +213,7 @@ def _with_grids(items: Iterable[tuple[int, _Item, Placed | None]], layout: Layou
 
     for j, item, placed in items:
         if placed is not None:
-            if len(route) > 1 and route[-1][1].travelled - route[-2][1].travelled < spacing:
-                route.pop()  # the newest kept lies within the spacing of the one before: this frame takes its place
-            route.append((j, placed))
+            keep_apart(route, j, placed, spacing)
         waiting.append((j, item, placed))
         newest = route[-1][1].travelled if route else None
         while waiting and (waiting[0][2] is None or len(waiting) > limit
@@ -253,7 +251,8 @@ def describe_range(frames: Iterable[Frame] | FrameSource, start: int, stop: int 
     n_labels = len(describer.groups.label_names)
     placer = layout_placer(config, describer)
     half = config.lost.reference_window // 2
-    behind, ahead = (held_for_layout(config.layout), waiting_for_layout(config.layout)) if placer else (0, 0)
+    behind, ahead = ((held_for_layout(config.layout), waiting_for_layout(config.layout)) if placer is not None
+                     else (0, 0))
     first = max(0, start - max(half, behind))
     cut = (frame for _, frame in _cut(frames, first, None if stop is None else stop + max(half, ahead)))
 

@@ -59,6 +59,15 @@ def spread(travelled: np.ndarray, low: float, high: float, limit: int, keep: int
     return np.array(sorted(chosen), dtype=np.int64)
 
 
+def keep_apart(kept: deque[tuple[int, Placed]], number: int, frame: Placed, spacing: float) -> None:
+    """Append ``frame`` (its ``number`` in the stream) to ``kept``, frames kept at least ``spacing`` metres apart but
+    for the newest: where the newest kept lies within the spacing of the one before it, the new frame takes its
+    place, so that the frames kept span their distance at any frame rate, and a stop keeps the road before it."""
+    if len(kept) > 1 and kept[-1][1].travelled - kept[-2][1].travelled < spacing:
+        kept.pop()
+    kept.append((number, frame))
+
+
 class Projectors:
     """The road-plane look-up of each camera and label-map shape met so far (built once each)."""
 
@@ -152,11 +161,7 @@ class LiveLayout:
         cfg = self.config
         if not frame.known:
             self._recent.clear()  # where it stood against the frames before is unknown: they cannot be gathered
-        if len(self._recent) > 1 and self._recent[-1][1].travelled - self._recent[-2][1].travelled < self._spacing:
-            # The newest frame kept lies within the spacing of the one before it: the new frame takes its place, so
-            # that the frames kept span ``query_travel`` at any frame rate, and a stop keeps the road before it.
-            self._recent.pop()
-        self._recent.append((next(self._numbers), frame))
+        keep_apart(self._recent, next(self._numbers), frame, self._spacing)
         while self._recent and self._recent[0][1].travelled < frame.travelled - cfg.query_travel - 1e-9:
             self._recent.popleft()
         while len(self._recent) > 4 * cfg.max_frames:
