@@ -58,9 +58,6 @@ class GridStack:
     def _set(self, grids: np.ndarray, cells: np.ndarray, scale: np.ndarray, totals: np.ndarray,
              square_totals: np.ndarray) -> None:
         self.n, self.channels = grids.shape[0], grids.shape[1] - 1
-        self.levels = grids.dtype == np.uint8
-        """Whether the values are one-byte levels (a map's): the query's are then made whole numbers too
-        (:func:`query_levels`), and every sum of a comparison is exact."""
         self.grids = grids
         """(N, 1 + C, P) each grid's mask and values: a subset of the grids is a gather of whole rows."""
         self.cells = cells
@@ -72,6 +69,12 @@ class GridStack:
         """(1 + C, N) float64: each grid's observed cells and sum of values over them."""
         self.square_totals = square_totals
         """(C, N) float64: each grid's sum of squared values."""
+
+    @property
+    def levels(self) -> bool:
+        """Whether the values are one-byte levels (a map's): the query's are then made whole numbers too
+        (:func:`query_levels`), and every sum of a comparison is exact."""
+        return self.grids.dtype == np.uint8
 
     @classmethod
     def of(cls, grids: Sequence[LayoutGrid]) -> "GridStack":
