@@ -134,6 +134,11 @@ def _best_turned_and_shifted(view: LayoutGrid, maps: list[LayoutGrid], min_cells
     return np.max([[_pearson_mean(v, g, WEIGHTS, min_cells) for g in maps] for v in variants], axis=0)
 
 
+def _stored(packed: list[tuple[np.ndarray, np.ndarray]], shape: tuple[int, int]) -> GridStack:
+    """Packed grids (:func:`pack`) as a map holds and compares them: one-byte levels."""
+    return GridStack(*unpack_levels(np.stack([v for v, _ in packed]), np.stack([b for _, b in packed]), shape))
+
+
 @pytest.mark.parametrize("seen", [0.3, 0.6, 0.97])
 def test_comparisons_equal_each_pair_compared_alone(rng, seen):
     """A stack's sums over the cells a query observed (the grids' totals less the cells it missed, or the cells it
@@ -144,7 +149,7 @@ def test_comparisons_equal_each_pair_compared_alone(rng, seen):
     grids[7] = LayoutGrid(grids[7].values, np.ones(shape, dtype=bool))
     grids[9] = LayoutGrid(grids[9].values * 0 + 0.5, grids[9].mask)  # constant: no correlation
     stored = [pack(g) for g in grids]
-    levels = GridStack(*unpack_levels(np.stack([v for v, _ in stored]), np.stack([b for _, b in stored]), shape))
+    levels = _stored(stored, shape)
     for query in (_grid(rng, shape, seen=seen), _grid(rng, shape, seen=seen).turned()):
         for stack, maps, atol in ((GridStack.of(grids), grids, 1e-5),
                                   (levels, [unpack(v, b, shape) for v, b in stored], 1e-3)):
@@ -152,13 +157,6 @@ def test_comparisons_equal_each_pair_compared_alone(rng, seen):
             assert np.allclose(similarity(query, stack, WEIGHTS, min_cells=25), expected, atol=atol)
             assert np.allclose(similarities([query, query.turned()], stack, WEIGHTS, min_cells=25)[1],
                                [_pearson_mean(query.turned(), g, WEIGHTS, 25) for g in maps], atol=atol)
-
-
-def _stored(grids: list[LayoutGrid]) -> GridStack:
-    """The grids as a map stores and compares them: one-byte levels."""
-    packed = [pack(g) for g in grids]
-    return GridStack(*unpack_levels(np.stack([v for v, _ in packed]), np.stack([b for _, b in packed]),
-                                    grids[0].mask.shape))
 
 
 def test_identical_grids_score_alike_wherever_they_lie(rng):
@@ -169,7 +167,7 @@ def test_identical_grids_score_alike_wherever_they_lie(rng):
     grid, other = _grid(rng, seen=0.95), _grid(rng, seen=0.95)
     for n in (5, 77, 128, 1001):
         grids = [grid if i % 3 else other for i in range(n)]
-        for stack, atol in ((GridStack.of(grids), 1e-5), (_stored(grids), 0.0)):
+        for stack, atol in ((GridStack.of(grids), 1e-5), (_stored([pack(g) for g in grids], grid.mask.shape), 0.0)):
             for query in (_grid(rng, seen=0.9), _grid(rng, seen=0.4)):
                 scores = similarities([query, query.turned()], stack, WEIGHTS, shifts=1, min_cells=5)
                 assert np.allclose(scores[:, 1::3], scores[:, 1:2], rtol=0, atol=atol)
@@ -182,9 +180,9 @@ _THREADS_SCRIPT = """
 import sys
 import numpy as np
 from lostx.core.layout.compare import GridStack, similarities
-from lostx.core.layout.grid import LayoutGrid
+from lostx.core.layout.grid import LayoutGrid, unpack_levels
 data = np.load(sys.argv[1])
-stack = GridStack(data["levels"], data["masks"], data["scale"])
+stack = GridStack(*unpack_levels(data["levels"], data["bits"], data["mask"].shape))
 query = LayoutGrid(data["values"], data["mask"])
 np.save(sys.argv[2], similarities([query, query.turned()], stack, data["weights"], shifts=1, min_cells=5))
 """
@@ -194,10 +192,10 @@ def test_a_maps_comparisons_do_not_depend_on_blas_threads(rng, tmp_path):
     """The comparison with a map's grids gives the same bits with one BLAS thread and with four (a comparison process
     and its caller may run different counts; OpenBLAS's AVX-512 kernels split a product's rows by thread, and sum
     them in another order)."""
-    grids = [_grid(rng, seen=0.9) for _ in range(300)]
-    stack, query = _stored(grids), _grid(rng, seen=0.8)
-    np.savez(tmp_path / "in.npz", levels=stack.grids[:, 1:].reshape(len(grids), len(CHANNELS), *query.mask.shape),
-             masks=stack.grids[:, 0].reshape(len(grids), *query.mask.shape).astype(bool), scale=stack.scale,
+    packed = [pack(_grid(rng, seen=0.9)) for _ in range(300)]
+    query = _grid(rng, seen=0.8)
+    stack = _stored(packed, query.mask.shape)
+    np.savez(tmp_path / "in.npz", levels=np.stack([v for v, _ in packed]), bits=np.stack([b for _, b in packed]),
              values=query.values, mask=query.mask, weights=WEIGHTS)
     got = []
     for threads in ("1", "4"):
@@ -474,7 +472,7 @@ def test_turned_and_shifted_comparisons_with_a_maps_stored_grids_equal_each_pair
     front = _placed(open_traverse(scene / "front").subset(range(16)), mosaic, config)
     stored = [pack(map_grid(rear, j, config.layout)) for j in range(len(rear))]
     shape = grid_shape(config.layout)
-    stack = GridStack(*unpack_levels(np.stack([v for v, _ in stored]), np.stack([b for _, b in stored]), shape))
+    stack = _stored(stored, shape)
     maps = [unpack(v, b, shape) for v, b in stored]
     live = LiveLayout(config.layout)
     queries = [live.add(p).grid() for p in front][10::2]
