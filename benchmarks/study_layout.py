@@ -33,6 +33,7 @@ from lostx.core.layout.describer import map_grid, spread
 from lostx.core.layout.grid import Gathering, accumulate
 from lostx.core.match.combined import CombinedScores, LayoutScores
 from lostx.core.match.matcher import PlaceMatcher
+from lostx.core.match.scores import MapScores
 from lostx.core.paths import data_dir
 from lostx.replay.dataset import SourceOptions, open_traverse
 
@@ -79,13 +80,11 @@ OBSERVED = dataclasses.replace(Config(), layout=dataclasses.replace(Config().lay
 median (at most 1) (told apart by identity)."""
 
 
-def _weighted_combine(share: Callable[[LayoutScores], float]) -> Callable:
-    """:meth:`CombinedScores._combine` with the layout's weight times ``share`` of the frame's comparison."""
-    def combine(self: CombinedScores, lost: np.ndarray, layout: np.ndarray) -> np.ndarray:
-        (lm, ls), (ym, ys) = self._lost_moments, self._layout_moments
-        layout = np.where(np.isfinite(layout), layout, self._floor)
-        return (lost - lm) / ls - self.weight * share(self.layout) * (layout - ym) / ys
-    return combine
+def _weighted(share: Callable[[LayoutScores], float]) -> Callable[..., CombinedScores]:
+    """The matcher's combined scores with the layout's weight times ``share`` of the frame's comparison."""
+    def combined(lost: MapScores, layout: LayoutScores, weight: float) -> CombinedScores:
+        return CombinedScores(lost, layout, weight * share(layout))
+    return combined
 
 
 def _gathered_share(scores: LayoutScores) -> float:
@@ -186,7 +185,7 @@ class Study:
             with mock.patch.object(ReferenceMap, "stores_other_ends", new=property(lambda self: False)):
                 return self._run(config)
         if id(config) in SHARES:
-            with mock.patch.object(CombinedScores, "_combine", _weighted_combine(SHARES[id(config)])):
+            with mock.patch("lostx.core.match.matcher.CombinedScores", _weighted(SHARES[id(config)])):
                 return self._run(config)
         return self._run(config)
 
