@@ -36,7 +36,7 @@ from lostx.replay.dataset import open_traverse
 
 SCENE = data_dir() / "nuscenes-frontrear" / "scene-0523"
 STAGES = ("descriptor", "search", "verify", "layout compare", "combine", "motion", "layout", "costs", "sequence",
-          "tracker")
+          "tracker", "other heading")
 
 
 def cycled_map(out: Path, real: ReferenceMap, describer: LostDescriber, frames: int,

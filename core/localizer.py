@@ -14,7 +14,10 @@
 
 The heading (the query viewing the route the same way as the map or the
 opposite way) is found from the evidence by a :class:`HeadingFilter`; the
-frame's matches under that heading feed the later stages. A declared camera
+frame's matches under that heading feed the later stages; while it is not yet
+sure, those under the other heading fill a sequence window of their own, so
+that where the evidence turns the heading the answers follow a window of the
+new heading's matches. A declared camera
 ties the direction of travel to the heading; undeclared, trajectories of both
 signs are searched, and the direction of travel is found from them
 (:class:`DirectionFilter`): once it is sure, the answer keeps to it. While the
@@ -62,7 +65,7 @@ from .decide.tail import leads
 from .describe.inputcheck import InputCheck
 from .describe.keypoints import KeypointEvidence
 from .errors import InputError, StateError
-from .frame import Frame, Heading
+from .frame import HEADINGS, Frame, Heading
 from .images import check_frame
 from .maps.refmap import ReferenceMap
 from .match.costs import EveryFrameCosts, LookedUpCosts
@@ -110,6 +113,12 @@ class Localizer:
                 store(refmap.path, calibration)
         self.calibration = calibration
         self.sequence = self._sequence_filter(None)
+        """The sequence filter over the frames' matches under the heading found."""
+        self._other: SequenceFilter | None = None
+        """While the heading is not sure: the sequence filter under the other heading, so that the answer follows the
+        heading found with a window of its own matches, not of the other's."""
+        self._sequence_heading: Heading | None = None
+        """The heading whose matches :attr:`sequence` holds."""
         self.following_distance: bool | None = None
         """Whether the sequence filter follows the distance travelled (where the map and the frames have motion);
         None before any frame."""
@@ -141,12 +150,12 @@ class Localizer:
                              "camera geometry for visual odometry)")
         if self.following_distance is None or route is not None:
             self.following_distance = route is not None
-            self.sequence = self._sequence_filter(route)
+            self.sequence, self._other = self._sequence_filter(route), None
 
     def reset(self) -> None:
         """Forget everything seen so far (start of a new traverse)."""
         self.matcher.reset()
-        self.sequence = self._sequence_filter(None)
+        self.sequence, self._other, self._sequence_heading = self._sequence_filter(None), None, None
         self.following_distance = None
         self._last_progress = None
         self.tracker.reset()
@@ -189,13 +198,39 @@ class Localizer:
             if self.following_distance and progress is None:
                 progress = self._last_progress  # the distance moved is not known: as if it stood still
             self._last_progress = progress
+            self._follow_heading(heading)
             estimate = self._sequence_estimate(frame, result, sure, latency, self._travel_direction(frame, heading, sure),
                                                progress)
+            t0 = time.perf_counter()
+            if self._other_heading(matches, heading, sure, progress):
+                latency["other heading"] = 1e3 * (time.perf_counter() - t0)
         else:
             estimate = self._single_estimate(frame, result, sure)
         estimate.heading_confidence = sure
         estimate.latency_ms = latency
         return estimate
+
+    def _follow_heading(self, heading: Heading) -> None:
+        """Answer from the sequence filter over the matches under ``heading``: where the heading found changed, the
+        one kept under it while it was unsure (else a fresh one); the route tracker starts again, its track being of
+        the other heading's answers."""
+        if self._sequence_heading is not None and heading != self._sequence_heading:
+            other = self._other if self._other is not None else self._sequence_filter(self.sequence.route)
+            self.sequence, self._other = other, self.sequence
+            self.tracker.reset()
+        self._sequence_heading = heading
+
+    def _other_heading(self, matches: FrameMatch, heading: Heading, sure: float, progress: float | None) -> bool:
+        """While the heading is less than ``heading.min_confidence`` probable, the frame's matches under the other
+        heading go to a sequence filter of their own (True: they did); once it is sure, that filter is dropped."""
+        if sure >= self.config.heading.min_confidence:
+            self._other = None
+            return False
+        if self._other is None:
+            self._other = self._sequence_filter(self.sequence.route)
+        result = matches[HEADINGS[1 - HEADINGS.index(heading)]]
+        self._other.update(result.map_scores, result.candidates, result.nearest, self._plausible_speeds(0), progress)
+        return True
 
     def _declared_heading(self, frame: Frame) -> Heading | None:
         if frame.camera is None:
@@ -363,7 +398,8 @@ class Localizer:
         localizer over the same map and settings given it by :meth:`restore` answers the next frames exactly as
         this one would. :class:`StateError` where a part cannot be carried (costs looked up on a very large map)."""
         return {"map_frames": self.map.n_frames, "matcher": self.matcher.state(), "sequence": self.sequence.state(),
-                "following_distance": self.following_distance, "last_progress": self._last_progress,
+                "other_sequence": None if self._other is None else self._other.state(),
+                "sequence_heading": self._sequence_heading, "following_distance": self.following_distance, "last_progress": self._last_progress,
                 "tracker": self.tracker.state(), "heading": self.heading.state(), "direction": self.direction.belief,
                 "last_timestamp": self._last_timestamp}
 
@@ -378,6 +414,10 @@ class Localizer:
         if self.following_distance is not None:
             self.sequence = self._sequence_filter(self.map.progress if self.following_distance else None)
         self.sequence.restore(state["sequence"])
+        if state.get("other_sequence") is not None:
+            self._other = self._sequence_filter(self.sequence.route)
+            self._other.restore(state["other_sequence"])
+        self._sequence_heading = state.get("sequence_heading")
         self._last_progress = state["last_progress"]
         self.tracker.restore(state["tracker"])
         self.heading.restore(state["heading"])

@@ -70,7 +70,7 @@ def test_a_thread_and_a_process_give_the_same_scores(stack):
     process.close()
     for a, b in zip(in_process, on_thread):
         assert np.array_equal(a, b)
-        assert a.shape == (4, stack.n) and np.isfinite(a).all()
+        assert a.shape == (2, stack.n) and np.isfinite(a).all()
 
 
 def _frame(rng: np.random.Generator) -> FramePoints:

@@ -69,8 +69,7 @@ def test_a_sideways_shift_within_reach_is_found(rng):
 def test_both_headings_in_one_pass_equal_each_compared_alone(rng, monkeypatch):
     """Every map frame compared under both headings at once, and (on a map too large for that) one row's asked
     frames alone: the same similarities as one grid against the map, best over its shifts. The turned grid is
-    compared with the other ends' grids where the map has them (the opposite heading); the first pass, with the
-    map camera's own grids unshifted, is kept for the heading vote."""
+    compared with the other ends' grids where the map has them (the opposite heading)."""
     from lostx.core.match import combined
 
     grids = [_grid(rng) for _ in range(30)]  # fewer than REFINE: every frame is refined either way
@@ -78,12 +77,11 @@ def test_both_headings_in_one_pass_equal_each_compared_alone(rng, monkeypatch):
     monkeypatch.setattr(combined, "EVERY_FRAME_MAX", 10)
     refs = np.array([3, 17, 29])
     for opposite, turned_against in ((None, stack), (other_ends, other_ends)):
-        alone = [similarity(query, stack, WEIGHTS, 1, 5), similarity(query.turned(), turned_against, WEIGHTS, 1, 5),
-                 similarity(query, stack, WEIGHTS, 0, 5), similarity(query.turned(), stack, WEIGHTS, 0, 5)]
+        alone = [similarity(query, stack, WEIGHTS, 1, 5), similarity(query.turned(), turned_against, WEIGHTS, 1, 5)]
         comparison = combined.LayoutComparison(query, stack, WEIGHTS, shifts=1, min_cells=5, opposite=opposite)
         # The shifted grids are compared again in one batch, their sums taken in another order: float32's precision.
         assert np.allclose(comparison.compute(), alone, atol=1e-5)
-        for row in (combined.SAME, combined.OPPOSITE, combined.FIRST_SAME, combined.FIRST_TURNED):
+        for row in (combined.SAME, combined.OPPOSITE):
             large = combined.LayoutComparison(query, stack, WEIGHTS, shifts=1, min_cells=5, opposite=opposite)
             assert np.allclose(large.heading(row).at(refs), alone[row][refs], atol=1e-6)
 

@@ -28,19 +28,17 @@ SAMPLE = 512
 """Map frames (evenly spaced) whose scores give a larger map's means and standard deviations."""
 REFINE = 64
 """The map frames most similar to a query as the grids lie that are compared again shifted sideways."""
-SAME, OPPOSITE, FIRST_SAME, FIRST_TURNED = 0, 1, 2, 3
+SAME, OPPOSITE = 0, 1
 """The rows of a comparison's scores. SAME: the frame's grid as it lies against the map's grids as its camera saw
 them (the same heading); OPPOSITE: turned 180 degrees, its most similar ones against the grids as each stretch's
-other end sees it (the opposite heading). FIRST_SAME and FIRST_TURNED: the one pass of the grid as it lies and
-turned against the map camera's own grids, which every row starts from; the heading vote weighs them, both
-hypotheses judged against the same grids."""
-_VIEW = (0, 1, 0, 1)
+other end sees it (the opposite heading)."""
+_VIEW = (0, 1)
 """Each row's view of the frame's grid: as it lies (0) or turned (1)."""
 
 
 class PendingComparison(Protocol):
     def result(self) -> np.ndarray:
-        """(4, N) each row's similarity with every map frame (:class:`LayoutComparison`; waiting for it)."""
+        """(2, N) each row's similarity with every map frame (:class:`LayoutComparison`; waiting for it)."""
 
 
 class Comparer(Protocol):
@@ -85,7 +83,7 @@ class LayoutComparison:
         return self._views
 
     def heading(self, index: int) -> LayoutScores:
-        """The scores of row ``index`` (:data:`SAME`, :data:`OPPOSITE`, :data:`FIRST_SAME`, :data:`FIRST_TURNED`)."""
+        """The scores of row ``index`` (:data:`SAME` or :data:`OPPOSITE`)."""
         return LayoutScores(self, index)
 
     def start(self, comparer: Comparer) -> None:
@@ -94,12 +92,11 @@ class LayoutComparison:
         self._future = comparer.submit(self)
 
     def compute(self) -> np.ndarray:
-        """(4, N) each row's similarity with every map frame (:data:`SAME`, :data:`OPPOSITE`, :data:`FIRST_SAME`,
-        :data:`FIRST_TURNED`), computed here."""
-        return self._compare((SAME, OPPOSITE, FIRST_SAME, FIRST_TURNED))
+        """(2, N) each row's similarity with every map frame (:data:`SAME`, :data:`OPPOSITE`), computed here."""
+        return self._compare((SAME, OPPOSITE))
 
     def every(self) -> np.ndarray:
-        """(4, N) each row's similarity with every map frame."""
+        """(2, N) each row's similarity with every map frame."""
         if self._every is None and self._future is not None:
             self._every = self._future.result()
         if self._every is None:
@@ -154,7 +151,7 @@ class LayoutScores:
 
     comparison: LayoutComparison
     index: int
-    """The comparison's row (:data:`SAME`, :data:`OPPOSITE`, :data:`FIRST_SAME`, :data:`FIRST_TURNED`)."""
+    """The comparison's row (:data:`SAME` or :data:`OPPOSITE`)."""
 
     @property
     def query(self) -> LayoutGrid:
@@ -245,13 +242,14 @@ class CombinedScores:
 
 
 def layout_vote(comparison: LayoutComparison) -> float:
-    """The layout's vote on the heading (> 0 favours opposite): which of the frame's grid as it lies and turned 180
-    degrees has its best map frame stand further above its other map frames, in standard deviations, in the one
-    pass against the map camera's own grids (:data:`FIRST_SAME`, :data:`FIRST_TURNED`: the two hypotheses judged
-    against the same grids; the other ends' grids rank the map's frames under the opposite heading). Each one's
-    similarities are judged against their own spread, since comparing grids as they are and turned differs for every
-    pair of frames, not only the true one (both cameras see road straight ahead)."""
-    same, opposite = comparison.heading(FIRST_SAME), comparison.heading(FIRST_TURNED)
+    """The layout's vote on the heading (> 0 favours opposite): under which heading the frame's best map frame stands
+    further above its other map frames, in standard deviations, in the scores that heading's answers are ranked by
+    (:data:`SAME`: the grid as it lies against the map camera's grids; :data:`OPPOSITE`: turned, against the grids
+    as each stretch's other end sees it). Each heading's similarities are judged against their own spread, since
+    comparing grids as they are and turned differs for every pair of frames, not only the true one (both cameras
+    see road straight ahead). Judged instead against the map camera's grids alone, turned and not, the vote leaned
+    to one heading by how the query's camera moves against its view (towards it or away), whatever the truth."""
+    same, opposite = comparison.heading(SAME), comparison.heading(OPPOSITE)
     def lead(scores: LayoutScores) -> float:
         values = scores.at(sampled(scores.n_frames))
         finite = values[np.isfinite(values)]

@@ -535,7 +535,8 @@ class PlaceMatcher:
                 confidence=margin(candidates, ranked, cfg.verify.uniqueness_exclusion),
                 n_matches=np.array([counts[rows[int(c)]] if int(c) in rows else 0 for c in candidates]),
                 map_scores=combined, layout=layout)
-        vote = 0.5 * (lost_vote + layout_vote(comparison))
+        weight = cfg.heading.layout_vote
+        vote = (lost_vote + weight * layout_vote(comparison)) / (1.0 + weight)
         return out, vote
 
 

@@ -1,0 +1,150 @@
+"""How the heading is found, on the four ways of pairing the nuScenes front and rear frames (docs/opposite-view.md).
+
+S1: map from the rear camera, queries from the front one (the paper's setup); S2: map from the front camera,
+queries the rear frames played backwards (the road driven the other way); S3: map from the front camera, queries
+the rear frames as recorded (a rear camera on a car driving the mapped direction); S4: map from the rear camera,
+queries the front frames played backwards (a camera moving away from what it sees, driving the other way). In S1
+and S2 the query camera moves towards what it sees, in S3 and S4 away from it. The heading is opposite in all four
+and is not declared.
+
+Each variant of the heading vote is run at the recorded 2 Hz and at 1 Hz (every other frame, map and queries,
+both halves summed), with the ego poses and with visual odometry: frames whose heading is right, and of them
+those where it is sure (at least ``heading.min_confidence``), and Recall@1 at 7.5 m of the look-at points, single
+frame and with the sequence filter.
+
+    python benchmarks/study_heading.py [--variants 1,4] [--out benchmarks/results/study_heading.json]
+"""
+
+from __future__ import annotations
+
+import common  # noqa: F401  (first: it limits numpy's BLAS threads before numpy loads)
+
+import argparse
+import dataclasses
+import tempfile
+import warnings
+from contextlib import nullcontext
+from pathlib import Path
+from unittest import mock
+
+import numpy as np
+
+from common import RESULTS, print_table, write_json
+from lostx.core import Config, Localizer, LostDescriber, ReferenceMap, build_map, load_backbone
+from lostx.core.layout.compare import similarities
+from lostx.core.match.combined import LayoutComparison, sampled
+from lostx.core.match.matcher import PlaceMatcher
+from lostx.replay.dataset import SourceOptions, open_traverse
+from study_layout import SCENE, TOLERANCE, variant
+
+PAIRINGS = {"S1": ("rear", "front", False), "S2": ("front", "rear", True), "S3": ("front", "rear", False),
+            "S4": ("rear", "front", True)}
+"""Map camera, query camera, queries played backwards."""
+RATES = {"2 Hz": 1, "1 Hz": 2}
+"""Every n-th frame."""
+MOTIONS = {"ego poses": Config(), "visual odometry": variant(motion=dict(source="visual"))}
+
+
+def _vote_against_own_grids(comparison: LayoutComparison) -> float:
+    """The layout's vote as it was: the frame's grid as it lies and turned, both against the map camera's own grids
+    in one unshifted pass; which one's best stands further above the rest."""
+    views = comparison.views
+    rows = similarities(list(views), comparison.maps.rows(sampled(comparison.maps.n)), comparison.weights, 0,
+                        comparison.min_cells)
+
+    def lead(values: np.ndarray) -> float:
+        finite = values[np.isfinite(values)]
+        return float((finite.max() - finite.mean()) / max(finite.std(), 1e-9)) if len(finite) > 1 else 0.0
+
+    return float(np.sign(lead(rows[1]) - lead(rows[0])))
+
+
+VARIANTS: dict[str, tuple[dict, object]] = {
+    "half weight (default)": ({}, None),
+    "equal weights": ({"layout_vote": 1.0}, None),
+    "LoST-X alone": ({"layout_vote": 0.0}, None),
+    "equal weights, own grids (before)": ({"layout_vote": 1.0}, _vote_against_own_grids),
+    "half weight, own grids": ({}, _vote_against_own_grids),
+}
+"""The frame's vote is LoST-X's and the layout's weighted mean (``heading.layout_vote`` the layout's weight: half,
+equal, none); the layout votes with the scores each heading ranks its answers by (the matcher's), or with its
+grid as it lies and turned, both against the map camera's own grids ("own grids"). Each: the heading settings
+changed, and the layout's vote in place of the matcher's (None: the matcher's)."""
+
+
+def run_pairing(config: Config, pairing: str, every: int, backbone, workdir: Path, maps: dict) -> dict[str, int]:
+    map_camera, query_camera, reverse = PAIRINGS[pairing]
+    totals = {"queries": 0, "single": 0, "sequence": 0, "heading": 0, "sure": 0, "frames": 0}
+    for start in range(every):
+        rows = list(range(start, 40, every))
+        key = (map_camera, start, every)
+        if key not in maps:
+            path = workdir / f"{map_camera}-{every}-{start}-{config.motion.source}"
+            traverse = open_traverse(SCENE / map_camera).subset(rows)
+            build_map(traverse, path, config, LostDescriber(backbone, config.lost), progress=False)
+            maps[key] = ReferenceMap.open(path)
+        refmap = maps[key]
+        map_looks = open_traverse(SCENE / map_camera, options=SourceOptions(look_at=15.0)).positions[rows]
+        queries = open_traverse(SCENE / query_camera).subset(rows)
+        looks = open_traverse(SCENE / query_camera, options=SourceOptions(look_at=15.0)).positions[rows]
+        if reverse:
+            queries, looks = queries.reversed(), looks[::-1]
+        frames = [dataclasses.replace(f, camera=None) for f in queries]
+        matcher = PlaceMatcher(refmap, config, backbone)
+        matches = [matcher.match_description(matcher.describe(f)) for f in frames]
+        for mode in ("single", "sequence"):
+            run_config = dataclasses.replace(config, sequence=dataclasses.replace(config.sequence,
+                                                                                  enabled=mode == "sequence"))
+            localizer = Localizer(refmap, run_config, backbone)
+            for k, (frame, match) in enumerate(zip(frames, matches)):
+                estimate = localizer.update(frame, match)
+                distance = np.hypot(*(map_looks - looks[k]).T)
+                if mode == "single":
+                    right = estimate.heading == "opposite"
+                    totals["frames"] += 1
+                    totals["heading"] += right
+                    totals["sure"] += right and estimate.heading_confidence >= config.heading.min_confidence
+                    totals["queries"] += bool(distance.min() <= TOLERANCE)
+                if distance.min() <= TOLERANCE:
+                    totals[mode] += bool(distance[estimate.match_index] <= TOLERANCE)
+    return totals
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--variants", help="comma-separated numbers of the variants to run (1 = the default; all)")
+    parser.add_argument("--out", type=Path, default=RESULTS / "study_heading.json")
+    args = parser.parse_args()
+    names = list(VARIANTS)
+    if args.variants:
+        names = [names[int(i) - 1] for i in args.variants.split(",")]
+    warnings.simplefilter("ignore")
+    backbone = load_backbone()
+    results: dict[str, dict] = {}
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        maps: dict[str, dict] = {motion: {} for motion in MOTIONS}
+        for name in names:
+            changes, vote = VARIANTS[name]
+            patch = mock.patch("lostx.core.match.matcher.layout_vote", vote) if vote is not None else nullcontext()
+            results[name] = {}
+            with patch:
+                for rate, every in RATES.items():
+                    for motion, base in MOTIONS.items():
+                        config = dataclasses.replace(base, heading=dataclasses.replace(base.heading, **changes))
+                        out = {p: run_pairing(config, p, every, backbone, Path(tmp), maps[motion]) for p in PAIRINGS}
+                        results[name][f"{rate}, {motion}"] = out
+                        rows.append([name if not any(row[0] == name for row in rows) else "", f"{rate}, {motion}",
+                                     *[f"{o['heading']} ({o['sure']}) / {o['frames']}" for o in out.values()],
+                                     *[f"{o['single']}/{o['sequence']} of {o['queries']}" for o in out.values()],
+                                     sum(o["heading"] for o in out.values()),
+                                     sum(o["single"] + o["sequence"] for o in out.values())])
+                        print(f"{name}: {rate}, {motion} done", flush=True)
+    print_table("The heading, undeclared: frames right (of them sure) / frames; Recall@1 at 7.5 m, single/sequence",
+                ["variant", "frames, motion", *[f"{p} heading" for p in PAIRINGS], *[f"{p} R@1" for p in PAIRINGS],
+                 "heading sum", "R@1 sum"], rows)
+    write_json(args.out, {"tolerance_m": TOLERANCE, "pairings": PAIRINGS, "variants": results})
+
+
+if __name__ == "__main__":
+    main()
