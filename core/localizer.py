@@ -399,7 +399,8 @@ class Localizer:
         this one would. :class:`StateError` where a part cannot be carried (costs looked up on a very large map)."""
         return {"map_frames": self.map.n_frames, "matcher": self.matcher.state(), "sequence": self.sequence.state(),
                 "other_sequence": None if self._other is None else self._other.state(),
-                "sequence_heading": self._sequence_heading, "following_distance": self.following_distance, "last_progress": self._last_progress,
+                "sequence_heading": self._sequence_heading, "following_distance": self.following_distance,
+                "last_progress": self._last_progress,
                 "tracker": self.tracker.state(), "heading": self.heading.state(), "direction": self.direction.belief,
                 "last_timestamp": self._last_timestamp}
 
