@@ -295,8 +295,8 @@ class HeadingConfig:
     """How often one frame's vote (its candidates scored with the query's x mirrored against not) points
     the right way; each vote multiplies the odds by reliability / (1 - reliability)."""
     layout_vote: float = 0.5
-    """Where the frames have a layout: the weight of its vote beside LoST-X's (weight 1); a frame's vote is half the
-    weighted sum. The layout's vote is right less often (docs/opposite-view.md: about 6 frames in 10, LoST-X's 8 in 10
+    """Where the frames have a layout: the weight of its vote beside LoST-X's (weight 1); a frame's vote is their
+    weighted mean. The layout's vote is right less often (docs/opposite-view.md: about 6 frames in 10, LoST-X's 8 in 10
     of those it decides, over the four ways of pairing a front and a rear camera); 0 leaves the heading to LoST-X."""
     switch: float = 0.0003
     """Probability per frame that the heading changes (the vehicle turned round, another camera)."""
