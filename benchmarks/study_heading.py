@@ -30,12 +30,11 @@ from unittest import mock
 import numpy as np
 
 from common import RESULTS, print_table, write_json
-from lostx.core import Config, Localizer, LostDescriber, ReferenceMap, build_map, load_backbone
+from lostx.core import Config, LostDescriber, ReferenceMap, build_map, load_backbone
 from lostx.core.layout.compare import similarities
-from lostx.core.match.combined import LayoutComparison, sampled
-from lostx.core.match.matcher import PlaceMatcher
+from lostx.core.match.combined import LayoutComparison, lead, sampled
 from lostx.replay.dataset import SourceOptions, open_traverse
-from study_layout import SCENE, TOLERANCE, variant
+from study_layout import SCENE, TOLERANCE, scored, variant
 
 PAIRINGS = {"S1": ("rear", "front", False), "S2": ("front", "rear", True), "S3": ("front", "rear", False),
             "S4": ("rear", "front", True)}
@@ -48,15 +47,9 @@ MOTIONS = {"ego poses": Config(), "visual odometry": variant(motion=dict(source=
 def _vote_against_own_grids(comparison: LayoutComparison) -> float:
     """The layout's vote as it was: the frame's grid as it lies and turned, both against the map camera's own grids
     in one unshifted pass; which one's best stands further above the rest."""
-    views = comparison.views
-    rows = similarities(list(views), comparison.maps.rows(sampled(comparison.maps.n)), comparison.weights, 0,
-                        comparison.min_cells)
-
-    def lead(values: np.ndarray) -> float:
-        finite = values[np.isfinite(values)]
-        return float((finite.max() - finite.mean()) / max(finite.std(), 1e-9)) if len(finite) > 1 else 0.0
-
-    return float(np.sign(lead(rows[1]) - lead(rows[0])))
+    same, turned = similarities(list(comparison.views), comparison.maps.rows(sampled(comparison.maps.n)),
+                                comparison.weights, 0, comparison.min_cells)
+    return float(np.sign(lead(turned) - lead(same)))
 
 
 VARIANTS: dict[str, tuple[dict, object]] = {
@@ -90,23 +83,14 @@ def run_pairing(config: Config, pairing: str, every: int, backbone, workdir: Pat
         if reverse:
             queries, looks = queries.reversed(), looks[::-1]
         frames = [dataclasses.replace(f, camera=None) for f in queries]
-        matcher = PlaceMatcher(refmap, config, backbone)
-        matches = [matcher.match_description(matcher.describe(f)) for f in frames]
-        for mode in ("single", "sequence"):
-            run_config = dataclasses.replace(config, sequence=dataclasses.replace(config.sequence,
-                                                                                  enabled=mode == "sequence"))
-            localizer = Localizer(refmap, run_config, backbone)
-            for k, (frame, match) in enumerate(zip(frames, matches)):
-                estimate = localizer.update(frame, match)
-                distance = np.hypot(*(map_looks - looks[k]).T)
-                if mode == "single":
-                    right = estimate.heading == "opposite"
-                    totals["frames"] += 1
-                    totals["heading"] += right
-                    totals["sure"] += right and estimate.heading_confidence >= config.heading.min_confidence
-                    totals["queries"] += bool(distance.min() <= TOLERANCE)
-                if distance.min() <= TOLERANCE:
-                    totals[mode] += bool(distance[estimate.match_index] <= TOLERANCE)
+        counts = scored(refmap, frames, looks, map_looks, config, backbone)
+        single = counts["single"]
+        totals["frames"] += len(frames)
+        totals["heading"] += single["opposite"]
+        totals["sure"] += single["sure"]
+        totals["queries"] += single["counted"]
+        totals["single"] += single["right"]
+        totals["sequence"] += counts["sequence"]["right"]
     return totals
 
 

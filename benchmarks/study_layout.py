@@ -199,26 +199,40 @@ class Study:
             looks = open_traverse(SCENE / query_camera, options=SourceOptions(look_at=15.0)).positions[queries.rows]
             map_looks = open_traverse(SCENE / map_camera, options=SourceOptions(look_at=15.0)).positions
             frames = [dataclasses.replace(f, camera=None) for f in queries]
-            matcher = PlaceMatcher(refmap, config, self.backbone)
-            matches = [matcher.match_description(matcher.describe(f)) for f in frames]
-            result: dict[str, list[int]] = {}
-            for mode in ("single", "sequence"):
-                run_config = dataclasses.replace(config, sequence=dataclasses.replace(config.sequence,
-                                                                                      enabled=mode == "sequence"))
-                localizer = Localizer(refmap, run_config, self.backbone)
-                right = counted = 0
-                heading = 0
-                for k, (frame, match) in enumerate(zip(frames, matches)):
-                    estimate = localizer.update(frame, match)
-                    heading += estimate.heading == "opposite"
-                    distance = np.hypot(*(map_looks - looks[k]).T)
-                    if distance.min() <= TOLERANCE:
-                        counted += 1
-                        right += bool(distance[estimate.match_index] <= TOLERANCE)
-                result[mode] = [right, counted]
-                result[f"heading_{mode}"] = [heading, len(frames)]
+            counts = scored(refmap, frames, looks, map_looks, config, self.backbone)
+            result = {}
+            for mode, c in counts.items():
+                result[mode] = [c["right"], c["counted"]]
+                result[f"heading_{mode}"] = [c["opposite"], len(frames)]
             out[setup] = result
         return out
+
+
+def scored(refmap: ReferenceMap, frames: list, looks: np.ndarray, map_looks: np.ndarray, config: Config,
+           backbone) -> dict[str, dict[str, int]]:
+    """``frames`` (their look-at points ``looks``) through localizers of ``config`` on ``refmap`` (its frames' look-at
+    points ``map_looks``), single frame and with the sequence filter: per mode the queries with a counterpart within
+    ``TOLERANCE`` (counted), those answered within it (right), and the frames whose heading is opposite, and opposite
+    and sure (at least ``heading.min_confidence``)."""
+    matcher = PlaceMatcher(refmap, config, backbone)
+    matches = [matcher.match_description(matcher.describe(f)) for f in frames]
+    out = {}
+    for mode in ("single", "sequence"):
+        run_config = dataclasses.replace(config, sequence=dataclasses.replace(config.sequence,
+                                                                              enabled=mode == "sequence"))
+        localizer = Localizer(refmap, run_config, backbone)
+        counts = {"counted": 0, "right": 0, "opposite": 0, "sure": 0}
+        for k, (frame, match) in enumerate(zip(frames, matches)):
+            estimate = localizer.update(frame, match)
+            opposite = estimate.heading == "opposite"
+            counts["opposite"] += opposite
+            counts["sure"] += opposite and estimate.heading_confidence >= config.heading.min_confidence
+            distance = np.hypot(*(map_looks - looks[k]).T)
+            if distance.min() <= TOLERANCE:
+                counts["counted"] += 1
+                counts["right"] += bool(distance[estimate.match_index] <= TOLERANCE)
+        out[mode] = counts
+    return out
 
 
 def chosen(results: dict[str, dict], on: str) -> str:

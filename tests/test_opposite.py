@@ -94,13 +94,14 @@ def test_a_heading_found_late_answers_from_a_window_of_its_own_matches(scene, ma
     (``declared_prior`` 0.9): the heading starts wrong and the evidence turns it at frame 19. While it was unsure the
     frames' matches under the other heading filled a window of their own, so the answers after the turn follow them
     (8 of the 13 frames with a counterpart right; 0 of 13 when the window held the wrong heading's matches)."""
-    queries = list(open_traverse(scene / "rear", options=LOOK_AT).reversed())
+    traverse = open_traverse(scene / "rear", options=LOOK_AT).reversed()
+    queries = list(traverse)
     config = Config(heading=HeadingConfig(declared_prior=0.9))
     localizer = Localizer(maps["front"], config, mosaic)
     estimates = [localizer.step(f) for f in queries]
     turned = next(k for k, e in enumerate(estimates) if e.heading == "opposite")
     assert turned == 19 and all(e.heading == "opposite" for e in estimates[turned:])
-    right, matchable = _right(estimates, maps["front"], open_traverse(scene / "rear", options=LOOK_AT).reversed())
+    right, matchable = _right(estimates, maps["front"], traverse)
     assert (int(right[turned:][matchable[turned:]].sum()), int(matchable[turned:].sum())) == (8, 13)
     # Stopped and restored while unsure (a service restarted), the other heading's window carries over.
     before = Localizer(maps["front"], config, mosaic)

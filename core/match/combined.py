@@ -29,11 +29,10 @@ SAMPLE = 512
 REFINE = 64
 """The map frames most similar to a query as the grids lie that are compared again shifted sideways."""
 SAME, OPPOSITE = 0, 1
-"""The rows of a comparison's scores. SAME: the frame's grid as it lies against the map's grids as its camera saw
-them (the same heading); OPPOSITE: turned 180 degrees, its most similar ones against the grids as each stretch's
-other end sees it (the opposite heading)."""
-_VIEW = (0, 1)
-"""Each row's view of the frame's grid: as it lies (0) or turned (1)."""
+"""The rows of a comparison's scores, and the index of the frame's view each compares (:attr:`LayoutComparison.views`).
+SAME: the frame's grid as it lies against the map's grids as its camera saw them (the same heading); OPPOSITE:
+turned 180 degrees, its most similar ones against the grids as each stretch's other end sees it (the opposite
+heading)."""
 
 
 class PendingComparison(Protocol):
@@ -111,21 +110,17 @@ class LayoutComparison:
         return self._compare((row,), refs)[0]
 
     def _compare(self, rows: tuple[int, ...], refs: np.ndarray | None = None) -> np.ndarray:
-        """(len(rows), N): every map grid (or those ``refs``) as its camera saw it, in one pass for the views the rows
-        need; then each refined row's ``REFINE`` most similar again, best over the small turns and sideways shifts
-        (a turn or a shift only ever finds a better fit, and only the best ones matter), the opposite heading's
-        against the other ends' grids (as they lie too). Rows refined with one stack share its batch."""
+        """(len(rows), N): each row's view against every map grid (or those ``refs``) as its camera saw it, in one
+        pass; then each row's ``REFINE`` most similar again, best over the small turns and sideways shifts (a turn or
+        a shift only ever finds a better fit, and only the best ones matter), the opposite heading's against the other
+        ends' grids (as they lie too). Rows refined with one stack share its batch."""
         start = time.perf_counter()
         maps = self.maps if refs is None else self.maps.rows(refs)
-        needed = sorted({_VIEW[r] for r in rows})
-        first = dict(zip(needed, similarities([self.views[v] for v in needed], maps, self.weights, 0,
-                                              self.min_cells)))
-        scores = np.stack([first[_VIEW[r]] for r in rows])
-        refine = [i for i, r in enumerate(rows) if r in (SAME, OPPOSITE)]
-        for stack in {id(self.stacks[rows[i]]): self.stacks[rows[i]] for i in refine}.values():
-            mine = [i for i in refine if self.stacks[rows[i]] is stack]
+        scores = similarities([self.views[r] for r in rows], maps, self.weights, 0, self.min_cells)
+        for stack in {id(self.stacks[r]): self.stacks[r] for r in rows}.values():
+            mine = [i for i, r in enumerate(rows) if self.stacks[r] is stack]
             scores[mine] = self._refined(scores[mine], stack if refs is None else stack.rows(refs),
-                                         [_VIEW[rows[i]] for i in mine], whole=stack is not self.maps)
+                                         [rows[i] for i in mine], whole=stack is not self.maps)
         self.seconds += time.perf_counter() - start
         return scores
 
@@ -156,7 +151,7 @@ class LayoutScores:
     @property
     def query(self) -> LayoutGrid:
         """The frame's grid under this heading."""
-        return self.comparison.views[_VIEW[self.index]]
+        return self.comparison.views[self.index]
 
     @property
     def n_frames(self) -> int:
@@ -249,10 +244,12 @@ def layout_vote(comparison: LayoutComparison) -> float:
     comparing grids as they are and turned differs for every pair of frames, not only the true one (both cameras
     see road straight ahead). Judged instead against the map camera's grids alone, turned and not, the vote leaned
     to one heading by how the query's camera moves against its view (towards it or away), whatever the truth."""
-    same, opposite = comparison.heading(SAME), comparison.heading(OPPOSITE)
-    def lead(scores: LayoutScores) -> float:
-        values = scores.at(sampled(scores.n_frames))
-        finite = values[np.isfinite(values)]
-        return float((finite.max() - finite.mean()) / max(finite.std(), 1e-9)) if len(finite) > 1 else 0.0
-
+    same, opposite = (comparison.heading(row).at(sampled(comparison.maps.n)) for row in (SAME, OPPOSITE))
     return float(np.sign(lead(opposite) - lead(same)))
+
+
+def lead(values: np.ndarray) -> float:
+    """How far the best of a frame's layout similarities ``values`` stands above the rest, in their standard
+    deviations (0 where fewer than two are finite)."""
+    finite = values[np.isfinite(values)]
+    return float((finite.max() - finite.mean()) / max(finite.std(), 1e-9)) if len(finite) > 1 else 0.0
