@@ -311,6 +311,10 @@ class TrackerConfig:
     enabled: bool = True
     gate_sigma: float = 4.0
     """Answers further than this many innovation standard deviations from the prediction are implausible."""
+    agree_within: float = 1.0
+    """A confident answer is ``localized`` only within this many reference frames of the track's prediction: one
+    that is plausible but further has changed the track's speed or position by more than the map resolves, and is
+    trusted again once the two agree."""
     relocalise_after: int = 3
     """Consecutive implausible, confident and mutually consistent answers that restart the track
     (a genuine jump: a kidnapped vehicle, a gap in the map)."""
@@ -470,7 +474,8 @@ LIMITS: dict[str, dict[str, Bounds]] = {
                 "layout_vote": Bounds(0, 1), "switch": Bounds(0, 0.5), "min_confidence": Bounds(0.5, 1)},
     "decision": {"min_confidence": Bounds(0, 1), "calibration_frames": _AT_LEAST_1},
     "tracker": {
-        "gate_sigma": _ABOVE_0, "relocalise_after": _AT_LEAST_1, "acquire_after": _AT_LEAST_0, "lost_after": _AT_LEAST_1,
+        "gate_sigma": _ABOVE_0, "agree_within": _AT_LEAST_0, "relocalise_after": _AT_LEAST_1,
+        "acquire_after": _AT_LEAST_0, "lost_after": _AT_LEAST_1,
         "position_sigma": _ABOVE_0, "speed_sigma": _ABOVE_0, "acceleration_sigma": _ABOVE_0,
     },
     "stream": {

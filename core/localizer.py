@@ -272,7 +272,7 @@ class Localizer:
             # Acquisition tests a constant speed in reference frames per frame: the trajectories' own model when
             # they follow the frames; when they follow the distance, stops and changes of speed break it.
             track = self.tracker.step(seq.position, seq.speed, confident, acquire=not self.following_distance)
-            trusted = confident and track.accepted
+            trusted = confident and track.accepted and abs(track.innovation) <= self.config.tracker.agree_within
             if not track.accepted and track.position != seq.position:
                 position, speed, confidence = track.position, track.speed, 0.0  # the track's prediction
         state = "localized" if trusted and not warming else "not_localized"

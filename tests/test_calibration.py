@@ -127,9 +127,13 @@ def test_a_map_too_short_to_calibrate_never_claims_to_be_sure(stretch_map):
     assert Localizer(stretch_map, Config()).calibration.too_short(True, 0.999) is None
 
 
-def test_a_100_frame_map_is_localized_and_right(nordland, tmp_path):
-    """A map of 100 summer frames (993-1092), calibrated on itself alone; its winter frames as queries."""
-    frames = range(993, 1093)
+# Measured: 56 of the 100 answers localized; 77 of the 200, where a trajectory that slowed at a tunnel's mouth
+# (query 46) led by as much as a right one while two frames behind its confirmed track, and was localized before
+# a localized answer had to agree with the track within a frame.
+@pytest.mark.parametrize("start, length, localized_count", [(993, 100, 56), (3376, 200, 77)])
+def test_a_short_map_is_localized_and_right(nordland, tmp_path, start, length, localized_count):
+    """A map of a stretch of summer frames, calibrated on itself alone; its winter frames as queries."""
+    frames = range(start, start + length)
     build_map(folder_traverse(nordland / "summer").subset(frames), tmp_path / "map", describer=ThumbnailDescriber(),
               progress=False)
     refmap = ReferenceMap.open(tmp_path / "map")
@@ -137,8 +141,7 @@ def test_a_100_frame_map_is_localized_and_right(nordland, tmp_path):
     localizer = Localizer(refmap, Config())
     estimates = [localizer.step(dataclasses.replace(winter.frame(q), id=k)) for k, q in enumerate(frames)]
     localized = [e for e in estimates if e.state == "localized"]
-    # Measured: 56 of the 100 answers localized, every one within a frame of the truth.
-    assert len(localized) == 56
+    assert len(localized) == localized_count
     assert all(abs(e.match_index - e.frame_id) <= 1 for e in localized)
 
 

@@ -49,6 +49,16 @@ def test_an_unconfident_track_holds_the_answer_through_one_bad_frame():
     assert back.accepted and back.position == pytest.approx(16.0, abs=0.5)
 
 
+def test_an_answer_that_slows_against_its_track_is_plausible_but_off_by_its_innovation():
+    tracker = RouteTracker(TrackerConfig())
+    assert tracker.step(40.0, 1.0, confident=True).relocalised
+    steps = [tracker.step(41.0 + t, 1.0, confident=True) for t in range(4)]  # 41..44, on the track
+    assert all(s.accepted and abs(s.innovation) < 0.05 for s in steps)
+    slowed = tracker.step(43.6, 0.9, confident=True)  # predicted at 45
+    assert slowed.accepted and slowed.innovation == pytest.approx(-1.4, abs=0.05)
+    assert abs(slowed.innovation) > TrackerConfig().agree_within  # so not localized
+
+
 def test_answers_that_do_not_move_together_start_no_track():
     tracker = RouteTracker(TrackerConfig(acquire_after=5))
     answers = [(10, 1), (11, 1), (40, 1), (41, 1), (42, 1), (43, 1)]

@@ -14,7 +14,11 @@ vehicle would (a short map seldom makes an answer confident; such a track holds 
 by itself, and narrows the speeds the sequence filter searches only once a
 confident answer has confirmed it). The filter then gates the sequence
 answers: one within ``gate_sigma`` standard deviations of the prediction is
-accepted; one further away is an implausible jump and is not trusted. (Also
+accepted; one further away is an implausible jump and is not trusted. An
+accepted answer more than ``agree_within`` map frames from the prediction is
+plausible but not trusted either: the trajectory has changed its speed, and
+a margin that says the place is unique does not say the position is right
+to the frame. (Also
 trusting weak answers that agree with the track raised recall on Nordland but
 let wrong answers through where the route leaves the map, so agreement only
 ever removes trust.) If confident rejected answers keep
@@ -44,6 +48,8 @@ class TrackStep:
     speed: float
     relocalised: bool = False
     """The track was (re)started at this frame."""
+    innovation: float = 0.0
+    """The answer's distance from the track's prediction, in reference frames (0 where it starts the track)."""
 
 
 class RouteTracker:
@@ -106,7 +112,7 @@ class RouteTracker:
             self.confirmed = self.confirmed or confident
             self.misses = 0
             self._rejected.clear()
-            return TrackStep(True, float(kf.x[0, 0]), float(kf.x[1, 0]))
+            return TrackStep(True, float(kf.x[0, 0]), float(kf.x[1, 0]), innovation=position - predicted)
         self.misses += 1
         if confident:
             self._rejected.append((position, speed))
