@@ -30,11 +30,10 @@ from unittest import mock
 import numpy as np
 
 from common import RESULTS, print_table, write_json
-from lostx.core import Config, LostDescriber, ReferenceMap, build_map, load_backbone
+from lostx.core import Config
 from lostx.core.layout.compare import similarities
 from lostx.core.match.combined import LayoutComparison, lead, sampled
-from lostx.replay.dataset import SourceOptions, open_traverse
-from study_layout import SCENE, TOLERANCE, scored, variant
+from study_layout import TOLERANCE, Study, runs, scored, variant
 
 PAIRINGS = {"S1": ("rear", "front", False), "S2": ("front", "rear", True), "S3": ("front", "rear", False),
             "S4": ("rear", "front", True)}
@@ -65,27 +64,13 @@ grid as it lies and turned, both against the map camera's own grids ("own grids"
 changed, and the layout's vote in place of the matcher's (None: the matcher's)."""
 
 
-def run_pairing(config: Config, pairing: str, every: int, backbone, workdir: Path, maps: dict) -> dict[str, int]:
-    map_camera, query_camera, reverse = PAIRINGS[pairing]
+def run_pairing(config: Config, pairing: str, every: int, study: Study) -> dict[str, int]:
     totals = {"queries": 0, "single": 0, "sequence": 0, "heading": 0, "sure": 0, "frames": 0}
-    for start in range(every):
-        rows = list(range(start, 40, every))
-        key = (map_camera, start, every)
-        if key not in maps:
-            path = workdir / f"{map_camera}-{every}-{start}-{config.motion.source}"
-            traverse = open_traverse(SCENE / map_camera).subset(rows)
-            build_map(traverse, path, config, LostDescriber(backbone, config.lost), progress=False)
-            maps[key] = ReferenceMap.open(path)
-        refmap = maps[key]
-        map_looks = open_traverse(SCENE / map_camera, options=SourceOptions(look_at=15.0)).positions[rows]
-        queries = open_traverse(SCENE / query_camera).subset(rows)
-        looks = open_traverse(SCENE / query_camera, options=SourceOptions(look_at=15.0)).positions[rows]
-        if reverse:
-            queries, looks = queries.reversed(), looks[::-1]
-        frames = [dataclasses.replace(f, camera=None) for f in queries]
-        counts = scored(refmap, frames, looks, map_looks, config, backbone)
+    for run in runs(PAIRINGS[pairing], every):
+        counts = scored(study.refmap(PAIRINGS[pairing][0], config, run), run.frames, run.looks, run.map_looks, config,
+                        study.backbone)
         single = counts["single"]
-        totals["frames"] += len(frames)
+        totals["frames"] += len(run.frames)
         totals["heading"] += single["opposite"]
         totals["sure"] += single["sure"]
         totals["queries"] += single["counted"]
@@ -103,11 +88,10 @@ def main() -> None:
     if args.variants:
         names = [names[int(i) - 1] for i in args.variants.split(",")]
     warnings.simplefilter("ignore")
-    backbone = load_backbone()
     results: dict[str, dict] = {}
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
-        maps: dict[str, dict] = {motion: {} for motion in MOTIONS}
+        study = Study(Path(tmp))
         for name in names:
             changes, vote = VARIANTS[name]
             patch = mock.patch("lostx.core.match.matcher.layout_vote", vote) if vote is not None else nullcontext()
@@ -116,7 +100,7 @@ def main() -> None:
                 for rate, every in RATES.items():
                     for motion, base in MOTIONS.items():
                         config = dataclasses.replace(base, heading=dataclasses.replace(base.heading, **changes))
-                        out = {p: run_pairing(config, p, every, backbone, Path(tmp), maps[motion]) for p in PAIRINGS}
+                        out = {p: run_pairing(config, p, every, study) for p in PAIRINGS}
                         results[name][f"{rate}, {motion}"] = out
                         rows.append([name if not any(row[0] == name for row in rows) else "", f"{rate}, {motion}",
                                      *[f"{o['heading']} ({o['sure']}) / {o['frames']}" for o in out.values()],

@@ -4,7 +4,9 @@ setup to the other (docs/opposite-view.md).
 S1: map from the rear camera, queries from the front one; S2: map from the front camera, queries the rear
 frames played backwards. The heading is not declared (the frames' camera is removed). Recall@1 at 7.5 m of the
 look-at points, counts of the queries that have a counterpart; single frame and with the sequence filter.
-For each family of variants the choice made on S1 is reported on S2 and the other way round.
+Each variant also at 1 Hz (every other frame of the map and the queries, both halves summed). For each family of
+variants the choice made on S1 is reported on S2 and the other way round: chosen at the recorded rate, and over
+both rates.
 
     python benchmarks/study_layout.py [--families weight,window,...] [--out benchmarks/results/study_layout.json]
 """
@@ -36,6 +38,7 @@ from lostx.core.match.matcher import PlaceMatcher
 from lostx.core.match.scores import MapScores
 from lostx.core.paths import data_dir
 from lostx.replay.dataset import SourceOptions, open_traverse
+from lostx.replay.folder import Traverse
 
 SCENE = data_dir() / "nuscenes-frontrear" / "scene-0523"
 SETUPS = {"S1": ("rear", "front", False), "S2": ("front", "rear", True)}
@@ -169,43 +172,72 @@ class Study:
         self.backbone = load_backbone()
         self._maps: dict[str, ReferenceMap] = {}
 
-    def refmap(self, camera: str, config: Config) -> ReferenceMap:
+    def refmap(self, camera: str, config: Config, run: Run) -> ReferenceMap:
+        """The map of ``camera``'s frames of ``run`` with the layout and motion of ``config`` (built once)."""
         key = json.dumps([camera, dataclasses.asdict(config.layout), dataclasses.asdict(config.motion),
-                          config is FACED], default=str)
+                          config is FACED, run.rows], default=str)
         if key not in self._maps:
             path = self.root / f"map-{len(self._maps)}"
             with mock.patch("lostx.core.build.map_grids", _gathered_faced) if config is FACED else nullcontext():
-                build_map(open_traverse(SCENE / camera), path, config, LostDescriber(self.backbone, config.lost),
-                          progress=False)
+                build_map(run.map_frames, path, config, LostDescriber(self.backbone, config.lost), progress=False)
             self._maps[key] = ReferenceMap.open(path)
         return self._maps[key]
 
-    def run(self, config: Config) -> dict[str, dict[str, list[int]]]:
+    def run(self, config: Config, every: int = 1) -> dict[str, dict[str, list[int]]]:
+        """Per setup, Recall@1 single frame and with the sequence filter, and the frames whose heading is opposite,
+        over every ``every``-th frame (the map's and the queries'; the runs from each start summed)."""
         if config is AS_SEEN:
             with mock.patch.object(ReferenceMap, "stores_other_ends", new=property(lambda self: False)):
-                return self._run(config)
+                return self._run(config, every)
         if id(config) in SHARES:
             with mock.patch("lostx.core.match.matcher.CombinedScores", _weighted(SHARES[id(config)])):
-                return self._run(config)
-        return self._run(config)
+                return self._run(config, every)
+        return self._run(config, every)
 
-    def _run(self, config: Config) -> dict[str, dict[str, list[int]]]:
+    def _run(self, config: Config, every: int) -> dict[str, dict[str, list[int]]]:
         out = {}
-        for setup, (map_camera, query_camera, reverse) in SETUPS.items():
-            refmap = self.refmap(map_camera, config)
-            queries = open_traverse(SCENE / query_camera)
-            if reverse:
-                queries = queries.reversed()
-            looks = open_traverse(SCENE / query_camera, options=SourceOptions(look_at=15.0)).positions[queries.rows]
-            map_looks = open_traverse(SCENE / map_camera, options=SourceOptions(look_at=15.0)).positions
-            frames = [dataclasses.replace(f, camera=None) for f in queries]
-            counts = scored(refmap, frames, looks, map_looks, config, self.backbone)
-            result = {}
-            for mode, c in counts.items():
-                result[mode] = [c["right"], c["counted"]]
-                result[f"heading_{mode}"] = [c["opposite"], len(frames)]
+        for setup, pairing in SETUPS.items():
+            result = {"single": [0, 0], "sequence": [0, 0], "heading_single": [0, 0], "heading_sequence": [0, 0]}
+            for run in runs(pairing, every):
+                counts = scored(self.refmap(pairing[0], config, run), run.frames, run.looks, run.map_looks, config,
+                                self.backbone)
+                for mode, c in counts.items():
+                    result[mode] = [result[mode][0] + c["right"], result[mode][1] + c["counted"]]
+                    heading = result[f"heading_{mode}"]
+                    result[f"heading_{mode}"] = [heading[0] + c["opposite"], heading[1] + len(run.frames)]
             out[setup] = result
         return out
+
+
+@dataclasses.dataclass(frozen=True)
+class Run:
+    """One run of a pairing of the scene's cameras: the map's frames and the queries, with their look-at points."""
+
+    rows: tuple[int, ...]
+    """The frames of the scene used, the map's and the queries'."""
+    map_frames: Traverse
+    frames: list
+    """The queries, in the order played, their camera removed (the heading is not declared)."""
+    looks: np.ndarray
+    map_looks: np.ndarray
+
+
+def runs(pairing: tuple[str, str, bool], every: int = 1) -> list[Run]:
+    """The runs of a pairing (map camera, query camera, queries played backwards) at every ``every``-th frame: one
+    from each of the first ``every`` frames (at the recorded rate, the whole scene once)."""
+    map_camera, query_camera, reverse = pairing
+    mapped, recorded = open_traverse(SCENE / map_camera), open_traverse(SCENE / query_camera)
+    map_looks = open_traverse(SCENE / map_camera, options=SourceOptions(look_at=15.0)).positions
+    looks = open_traverse(SCENE / query_camera, options=SourceOptions(look_at=15.0)).positions
+    out = []
+    for start in range(every):
+        rows = list(range(start, len(mapped), every))
+        map_frames, queries = (mapped, recorded) if every == 1 else (mapped.subset(rows), recorded.subset(rows))
+        if reverse:
+            queries = queries.reversed()
+        out.append(Run(tuple(rows), map_frames, [dataclasses.replace(f, camera=None) for f in queries],
+                       looks[queries.rows], map_looks[rows]))
+    return out
 
 
 def scored(refmap: ReferenceMap, frames: list, looks: np.ndarray, map_looks: np.ndarray, config: Config,
@@ -235,9 +267,17 @@ def scored(refmap: ReferenceMap, frames: list, looks: np.ndarray, map_looks: np.
     return out
 
 
-def chosen(results: dict[str, dict], on: str) -> str:
-    """The variant with the best sequence Recall@1 on setup ``on`` (ties: single frame, then the listed order)."""
-    return max(results, key=lambda name: (results[name][on]["sequence"][0], results[name][on]["single"][0]))
+RATES = {"2 Hz": 1, "1 Hz": 2}
+"""Every n-th frame: the recorded rate, and every other frame (the map's and the queries', both halves summed)."""
+
+
+def chosen(results: dict[str, dict], on: str, rates: tuple[str, ...] = ("2 Hz",)) -> str:
+    """The variant with the best sequence Recall@1 on setup ``on``, summed over ``rates`` (ties: single frame, then
+    the listed order)."""
+    def figure(name: str, mode: str) -> int:
+        return sum(results[name][rate][on][mode][0] for rate in rates)
+
+    return max(results, key=lambda name: (figure(name, "sequence"), figure(name, "single")))
 
 
 def main() -> None:
@@ -250,18 +290,25 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         study = Study(Path(tmp))
         for family in args.families.split(","):
-            results = {name: study.run(config) for name, config in FAMILIES[family].items()}
+            results = {name: {rate: study.run(config, every) for rate, every in RATES.items()}
+                       for name, config in FAMILIES[family].items()}
             rows = []
-            for name, r in results.items():
+            for name, by_rate in results.items():
+                r, half = by_rate["2 Hz"], by_rate["1 Hz"]
                 rows.append([name, *(f"{r[s][m][0]}/{r[s][m][1]}" for s in SETUPS for m in ("single", "sequence")),
-                             f"{r['S1']['heading_sequence'][0]}/{r['S2']['heading_sequence'][0]}"])
-            print_table(f"{family}: Recall@1 at 7.5 m (heading opposite in frames of 40)",
-                        ["variant", "S1 single", "S1 sequence", "S2 single", "S2 sequence", "heading S1/S2"], rows)
-            on_s1, on_s2 = chosen(results, "S1"), chosen(results, "S2")
-            print(f"chosen on S1: {on_s1} -> S2 sequence {results[on_s1]['S2']['sequence']}; "
-                  f"chosen on S2: {on_s2} -> S1 sequence {results[on_s2]['S1']['sequence']}")
-            report[family] = {"results": results, "chosen_on_S1": on_s1, "chosen_on_S2": on_s2}
-    write_json(args.out, {"benchmark": "study_layout", "tolerance_m": TOLERANCE, "families": report})
+                             f"{r['S1']['heading_sequence'][0]}/{r['S2']['heading_sequence'][0]}",
+                             *(f"{half[s][m][0]}/{half[s][m][1]}" for s in SETUPS for m in ("single", "sequence"))])
+            print_table(f"{family}: Recall@1 at 7.5 m, 2 Hz (heading opposite in frames of 40), and 1 Hz",
+                        ["variant", "S1 single", "S1 sequence", "S2 single", "S2 sequence", "heading S1/S2",
+                         "1 Hz S1 single", "S1 sequence", "S2 single", "S2 sequence"], rows)
+            report[family] = {"results": results}
+            for rates in (("2 Hz",), tuple(RATES)):
+                on_s1, on_s2 = chosen(results, "S1", rates), chosen(results, "S2", rates)
+                at = results[on_s1]["2 Hz"]["S2"], results[on_s2]["2 Hz"]["S1"]
+                print(f"chosen on {' + '.join(rates)}: on S1 {on_s1} -> S2 {at[0]['single']} {at[0]['sequence']}; "
+                      f"on S2 {on_s2} -> S1 {at[1]['single']} {at[1]['sequence']}")
+                report[family][f"chosen on {' + '.join(rates)}"] = {"S1": on_s1, "S2": on_s2}
+    write_json(args.out, {"benchmark": "study_layout", "tolerance_m": TOLERANCE, "rates": RATES, "families": report})
 
 
 if __name__ == "__main__":
