@@ -18,10 +18,9 @@ accepted; one further away is an implausible jump and is not trusted. An
 accepted answer more than ``agree_within`` map frames from the prediction is
 plausible but not trusted either: the trajectory has changed its speed, and
 a margin that says the place is unique does not say the position is right
-to the frame. (Also
-trusting weak answers that agree with the track raised recall on Nordland but
-let wrong answers through where the route leaves the map, so agreement only
-ever removes trust.) If confident rejected answers keep
+to the frame. (Also trusting weak answers that agree with the track raised
+recall on Nordland but let wrong answers through where the route leaves the
+map, so agreement only ever removes trust.) If confident rejected answers keep
 agreeing with one another for ``relocalise_after`` frames, the vehicle really
 did jump (a kidnapped robot, a gap in the map) and the track restarts there;
 after ``lost_after`` rejections in a row the track is dropped.
@@ -49,7 +48,7 @@ class TrackStep:
     relocalised: bool = False
     """The track was (re)started at this frame."""
     innovation: float = 0.0
-    """The answer's distance from the track's prediction, in reference frames (0 where it starts the track)."""
+    """The answer less the track's prediction, in reference frames (0 where the answer starts the track)."""
 
 
 class RouteTracker:
