@@ -33,13 +33,10 @@ from common import RESULTS, print_table, write_json
 from lostx.core import Config
 from lostx.core.layout.compare import similarities
 from lostx.core.match.combined import LayoutComparison, lead, sampled
-from study_layout import TOLERANCE, Study, runs, scored, variant
+from study_layout import RATES, SETUPS, TOLERANCE, Study, variant
 
-PAIRINGS = {"S1": ("rear", "front", False), "S2": ("front", "rear", True), "S3": ("front", "rear", False),
-            "S4": ("rear", "front", True)}
+PAIRINGS = {**SETUPS, "S3": ("front", "rear", False), "S4": ("rear", "front", True)}
 """Map camera, query camera, queries played backwards."""
-RATES = {"2 Hz": 1, "1 Hz": 2}
-"""Every n-th frame."""
 MOTIONS = {"ego poses": Config(), "visual odometry": variant(motion=dict(source="visual"))}
 
 
@@ -65,18 +62,10 @@ changed, and the layout's vote in place of the matcher's (None: the matcher's)."
 
 
 def run_pairing(config: Config, pairing: str, every: int, study: Study) -> dict[str, int]:
-    totals = {"queries": 0, "single": 0, "sequence": 0, "heading": 0, "sure": 0, "frames": 0}
-    for run in runs(PAIRINGS[pairing], every):
-        counts = scored(study.refmap(PAIRINGS[pairing][0], config, run), run.frames, run.looks, run.map_looks, config,
-                        study.backbone)
-        single = counts["single"]
-        totals["frames"] += len(run.frames)
-        totals["heading"] += single["opposite"]
-        totals["sure"] += single["sure"]
-        totals["queries"] += single["counted"]
-        totals["single"] += single["right"]
-        totals["sequence"] += counts["sequence"]["right"]
-    return totals
+    counts = study.counts(config, PAIRINGS[pairing], every)
+    single = counts["single"]
+    return {"queries": single["counted"], "single": single["right"], "sequence": counts["sequence"]["right"],
+            "heading": single["opposite"], "sure": single["sure"], "frames": single["frames"]}
 
 
 def main() -> None:

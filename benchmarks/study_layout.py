@@ -42,6 +42,8 @@ from lostx.replay.folder import Traverse
 
 SCENE = data_dir() / "nuscenes-frontrear" / "scene-0523"
 SETUPS = {"S1": ("rear", "front", False), "S2": ("front", "rear", True)}
+"""Map camera, query camera, queries played backwards."""
+MODES = ("single", "sequence")
 TOLERANCE = 7.5
 
 
@@ -197,16 +199,22 @@ class Study:
     def _run(self, config: Config, every: int) -> dict[str, dict[str, list[int]]]:
         out = {}
         for setup, pairing in SETUPS.items():
-            result = {"single": [0, 0], "sequence": [0, 0], "heading_single": [0, 0], "heading_sequence": [0, 0]}
-            for run in runs(pairing, every):
-                counts = scored(self.refmap(pairing[0], config, run), run.frames, run.looks, run.map_looks, config,
-                                self.backbone)
-                for mode, c in counts.items():
-                    result[mode] = [result[mode][0] + c["right"], result[mode][1] + c["counted"]]
-                    heading = result[f"heading_{mode}"]
-                    result[f"heading_{mode}"] = [heading[0] + c["opposite"], heading[1] + len(run.frames)]
-            out[setup] = result
+            counts = self.counts(config, pairing, every)
+            out[setup] = {**{mode: [c["right"], c["counted"]] for mode, c in counts.items()},
+                          **{f"heading_{mode}": [c["opposite"], c["frames"]] for mode, c in counts.items()}}
         return out
+
+    def counts(self, config: Config, pairing: tuple[str, str, bool], every: int = 1) -> dict[str, dict[str, int]]:
+        """:func:`scored`'s counts per mode over the runs of ``pairing`` at every ``every``-th frame, summed, with the
+        frames played (``frames``)."""
+        total = {mode: {"counted": 0, "right": 0, "opposite": 0, "sure": 0, "frames": 0} for mode in MODES}
+        for run in runs(pairing, every):
+            for mode, c in scored(self.refmap(pairing[0], config, run), run.frames, run.looks, run.map_looks, config,
+                                  self.backbone).items():
+                for key, value in c.items():
+                    total[mode][key] += value
+                total[mode]["frames"] += len(run.frames)
+        return total
 
 
 @dataclasses.dataclass(frozen=True)
@@ -249,7 +257,7 @@ def scored(refmap: ReferenceMap, frames: list, looks: np.ndarray, map_looks: np.
     matcher = PlaceMatcher(refmap, config, backbone)
     matches = [matcher.match_description(matcher.describe(f)) for f in frames]
     out = {}
-    for mode in ("single", "sequence"):
+    for mode in MODES:
         run_config = dataclasses.replace(config, sequence=dataclasses.replace(config.sequence,
                                                                               enabled=mode == "sequence"))
         localizer = Localizer(refmap, run_config, backbone)
@@ -295,9 +303,9 @@ def main() -> None:
             rows = []
             for name, by_rate in results.items():
                 r, half = by_rate["2 Hz"], by_rate["1 Hz"]
-                rows.append([name, *(f"{r[s][m][0]}/{r[s][m][1]}" for s in SETUPS for m in ("single", "sequence")),
+                rows.append([name, *(f"{r[s][m][0]}/{r[s][m][1]}" for s in SETUPS for m in MODES),
                              f"{r['S1']['heading_sequence'][0]}/{r['S2']['heading_sequence'][0]}",
-                             *(f"{half[s][m][0]}/{half[s][m][1]}" for s in SETUPS for m in ("single", "sequence"))])
+                             *(f"{half[s][m][0]}/{half[s][m][1]}" for s in SETUPS for m in MODES)])
             print_table(f"{family}: Recall@1 at 7.5 m, 2 Hz (heading opposite in frames of 40), and 1 Hz",
                         ["variant", "S1 single", "S1 sequence", "S2 single", "S2 sequence", "heading S1/S2",
                          "1 Hz S1 single", "S1 sequence", "S2 single", "S2 sequence"], rows)
