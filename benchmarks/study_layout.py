@@ -136,7 +136,7 @@ FAMILIES: dict[str, dict[str, Config]] = {
     },
     "grid": {
         "cells 2 m (default)": Config(),
-        "cells 1 m": variant(layout=dict(cell=1.0, blur=1.0, across_shift=3.0)),
+        "cells 1 m": variant(layout=dict(cell=1.0, blur=1.0)),
         "range 30 m": variant(layout=dict(max_range=30.0)),
         "range 40 m": variant(layout=dict(max_range=40.0)),
     },
@@ -147,7 +147,9 @@ FAMILIES: dict[str, dict[str, Config]] = {
         "query 36 m, map +-27 m": variant(layout=dict(query_travel=36.0, map_travel=27.0)),
     },
     "comparison": {
-        "sideways shift +-2 m (default)": Config(),
+        "sideways shift +-4 m (default)": Config(),
+        "sideways shift +-6 m": variant(layout=dict(across_shift=6.0)),
+        "sideways shift +-2 m": variant(layout=dict(across_shift=2.0)),
         "no sideways shift": variant(layout=dict(across_shift=0.0)),
         "vehicles weighted 1": variant(layout=dict(vehicle_weight=1.0)),
         "vehicles left out": variant(layout=dict(vehicle_weight=0.0)),

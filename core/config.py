@@ -243,8 +243,9 @@ class LayoutConfig:
     """A map frame's grid gathers the frames within this many metres travelled on either side of it."""
     max_frames: int = 12
     """At most this many frames are gathered into one grid (the most recent ones, or those nearest a map frame)."""
-    across_shift: float = 2.0
-    """The grids are compared shifted sideways up to this many metres (a car in another lane)."""
+    across_shift: float = 4.0
+    """The grids are compared shifted sideways up to this many metres: a car driving the road the other way drives
+    another lane, 3 to 3.7 m over (benchmarks/study_lane.py)."""
     turns: tuple[float, ...] = (-2.0, 0.0, 2.0)
     """The most similar map grids are compared again with the query's turned by these angles (degrees) about its
     centre: views of a curve from its two ends are not exactly 180 degrees apart, and the gathered frames' motion

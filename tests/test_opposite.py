@@ -66,9 +66,10 @@ def test_the_papers_setup_finds_the_opposite_heading_without_being_told(scene, m
     queries = open_traverse(scene / "front", options=LOOK_AT)
     estimates = _run(maps["rear"], queries, mosaic, sequence=False, declared=False)
     headings = [e.heading for e in estimates]
-    assert headings.count("opposite") == 40
+    # The first frame's heading is its own vote alone (0.53 the wrong way, not sure); every later one is right.
+    assert headings[1:].count("opposite") == 39 and estimates[0].heading_confidence < 0.9
     right, matchable = _right(estimates, maps["rear"], queries)
-    assert (int(right[matchable].sum()), int(matchable.sum())) == (26, 34)  # measured, single frame, with the layout
+    assert (int(right[matchable].sum()), int(matchable.sum())) == (27, 34)  # measured, single frame, with the layout
     assert not any(e.state == "localized" and not r for e, r in zip(estimates, right))
 
 
@@ -78,22 +79,44 @@ def test_the_road_driven_the_other_way_is_followed_with_a_falling_index(scene, m
     queries = open_traverse(scene / "rear", options=LOOK_AT).reversed()
     assert queries.camera == "front"
     estimates = _run(maps["front"], queries, mosaic)
-    # The first frame's heading is its own vote alone (held at 0.52, not sure); every later one is right.
+    # The first frame's heading is its own vote alone (0.51, not sure); every later one is right.
     assert [e.heading for e in estimates[1:]].count("opposite") == 39
     # Once the heading is sure, the declared front camera viewing the map the opposite way drives it the
     # other way: the reference index falls as the query advances.
     settled = [e for e in estimates if not e.warming_up and e.heading_confidence >= 0.9]
     assert len(settled) == 21 and all(e.speed < 0 for e in settled)
     right, matchable = _right(estimates, maps["front"], queries)
-    assert (int(right[matchable].sum()), int(matchable.sum())) == (29, 32)  # measured, sequence, with the layout
+    assert (int(right[matchable].sum()), int(matchable.sum())) == (31, 32)  # measured, sequence, with the layout
     assert not any(e.state == "localized" for e in estimates)  # 40 map frames: too few to be sure of anything
+
+
+@pytest.mark.parametrize("metres", [-3.5, 3.5])
+def test_the_road_driven_the_other_way_one_lane_over_is_still_followed(scene, maps, mosaic, monkeypatch, metres):
+    """A car driving the mapped road the other way drives another lane. Each query's grid gathered as by a camera
+    3.5 m to its right (where traffic keeps right) or left, the comparison's sideways shifts still find its
+    stretches: measured, 29 and 30 of 32 right with the sequence (22 and 17 when it searched 2 m sideways)."""
+    from lostx.core.layout import grid as layout_grid
+
+    def beside(self):
+        if self._grid is None:
+            x, y, yaw = self.current
+            here = np.array([x - metres * np.sin(yaw), y + metres * np.cos(yaw), yaw])
+            self.received(layout_grid.accumulate(self.frames, self.poses, here, self.config))
+        return self._grid
+
+    monkeypatch.setattr(layout_grid.Gathering, "grid", beside)
+    queries = open_traverse(scene / "rear", options=LOOK_AT).reversed()
+    estimates = _run(maps["front"], queries, mosaic)
+    right, matchable = _right(estimates, maps["front"], queries)
+    assert int(matchable.sum()) == 32
+    assert int(right[matchable].sum()) == {-3.5: 29, 3.5: 30}[metres]
 
 
 def test_a_heading_found_late_answers_from_a_window_of_its_own_matches(scene, maps, mosaic):
     """The road driven the other way with the declared front camera taken as a vehicle driving the mapped direction
     (``declared_prior`` 0.9): the heading starts wrong and the evidence turns it at frame 19. While it was unsure the
     frames' matches under the other heading filled a window of their own, so the answers after the turn follow them
-    (8 of the 13 frames with a counterpart right; 0 of 13 when the window held the wrong heading's matches)."""
+    (10 of the 13 frames with a counterpart right; 0 of 13 when the window held the wrong heading's matches)."""
     traverse = open_traverse(scene / "rear", options=LOOK_AT).reversed()
     queries = list(traverse)
     config = Config(heading=HeadingConfig(declared_prior=0.9))
@@ -102,7 +125,7 @@ def test_a_heading_found_late_answers_from_a_window_of_its_own_matches(scene, ma
     turned = next(k for k, e in enumerate(estimates) if e.heading == "opposite")
     assert turned == 19 and all(e.heading == "opposite" for e in estimates[turned:])
     right, matchable = _right(estimates, maps["front"], traverse)
-    assert (int(right[turned:][matchable[turned:]].sum()), int(matchable[turned:].sum())) == (8, 13)
+    assert (int(right[turned:][matchable[turned:]].sum()), int(matchable[turned:].sum())) == (10, 13)
     # Stopped and restored while unsure (a service restarted), the other heading's window carries over.
     before = Localizer(maps["front"], config, mosaic)
     for frame in queries[:16]:
@@ -114,8 +137,8 @@ def test_a_heading_found_late_answers_from_a_window_of_its_own_matches(scene, ma
     assert [after.step(f).match_index for f in queries[16:]] == [e.match_index for e in estimates[16:]]
 
 
-@pytest.mark.parametrize("map_side, query_side, reverse, expected", [("front", "rear", False, (38, 28)),
-                                                                   ("rear", "front", True, (37, 28))])
+@pytest.mark.parametrize("map_side, query_side, reverse, expected", [("front", "rear", False, (38, 29)),
+                                                                   ("rear", "front", True, (37, 30))])
 def test_a_query_camera_moving_away_from_its_view_finds_the_heading(scene, maps, mosaic, map_side, query_side,
                                                                       reverse, expected):
     """The cameras the other way round: a rear camera on a car driving the mapped direction against the front camera's
@@ -451,7 +474,7 @@ def test_plain_folders_with_a_camera_file_find_the_opposite_views_from_their_fra
     assert queries.geometry is not None and queries.camera is None and queries.positions is None
     (truth,) = from_positions(open_traverse(scene / "front", options=LOOK_AT).positions,
                               open_traverse(scene / "rear", options=LOOK_AT).positions, 7.5)
-    for sequence, expected in ((False, 27), (True, 25)):
+    for sequence, expected in ((False, 28), (True, 25)):
         estimates = _run(refmap, queries, mosaic, sequence=sequence)
         assert [e.heading for e in estimates[1:]].count("opposite") == 39  # the first frame: its own vote alone
         right = truth.is_correct(np.array([e.match_index for e in estimates]))
