@@ -29,22 +29,24 @@ from unittest import mock
 import numpy as np
 
 from common import RESULTS, print_table, write_json
-from lostx.core.layout import grid as layout_grid
+from lostx.core.layout.describer import LiveLayout, Placed
+from lostx.core.layout.grid import Gathering
+from lostx.core.motion.pose import compose
 from study_heading import MOTIONS, PAIRINGS, run_pairing
 from study_layout import RATES, TOLERANCE, Study
 
 
 @contextmanager
 def one_lane_over(metres: float) -> Iterator[None]:
-    """Every query grid gathered as by a camera ``metres`` to its left (negative: to its right)."""
-    def grid(self: layout_grid.Gathering) -> layout_grid.LayoutGrid:
-        if self._grid is None:
-            x, y, yaw = self.current
-            beside = np.array([x - metres * np.sin(yaw), y + metres * np.cos(yaw), yaw])
-            self.received(layout_grid.accumulate(self.frames, self.poses, beside, self.config))
-        return self._grid  # type: ignore[return-value]
+    """Every query grid gathered as by a camera ``metres`` to its left (negative: to its right): each live frame's
+    gathering made to stand there, wherever it is then gathered (on a thread or in the comparison process)."""
+    add = LiveLayout.add
 
-    with mock.patch.object(layout_grid.Gathering, "grid", grid):
+    def beside(self: LiveLayout, frame: Placed) -> Gathering:
+        gathering = add(self, frame)
+        return dataclasses.replace(gathering, current=compose(gathering.current, np.array([0.0, metres, 0.0])))
+
+    with mock.patch.object(LiveLayout, "add", beside):
         yield
 
 

@@ -95,16 +95,16 @@ def test_the_road_driven_the_other_way_one_lane_over_is_still_followed(scene, ma
     """A car driving the mapped road the other way drives another lane. Each query's grid gathered as by a camera
     3.5 m to its right (where traffic keeps right) or left, the comparison's sideways shifts still find its
     stretches: measured, 29 and 30 of 32 right with the sequence (22 and 17 when it searched 2 m sideways)."""
-    from lostx.core.layout import grid as layout_grid
+    from lostx.core.layout.describer import LiveLayout
+    from lostx.core.motion.pose import compose
 
-    def beside(self):
-        if self._grid is None:
-            x, y, yaw = self.current
-            here = np.array([x - metres * np.sin(yaw), y + metres * np.cos(yaw), yaw])
-            self.received(layout_grid.accumulate(self.frames, self.poses, here, self.config))
-        return self._grid
+    add = LiveLayout.add
 
-    monkeypatch.setattr(layout_grid.Gathering, "grid", beside)
+    def beside(self, frame):
+        gathering = add(self, frame)
+        return dataclasses.replace(gathering, current=compose(gathering.current, np.array([0.0, metres, 0.0])))
+
+    monkeypatch.setattr(LiveLayout, "add", beside)
     queries = open_traverse(scene / "rear", options=LOOK_AT).reversed()
     estimates = _run(maps["front"], queries, mosaic)
     right, matchable = _right(estimates, maps["front"], queries)
