@@ -130,6 +130,8 @@ FAMILIES: dict[str, dict[str, Config]] = {
         "times the cells observed, squared": OBSERVED,
     },
     "window": {f"distance window {d:g} m": variant(sequence=dict(distance_window=d)) for d in (30.0, 45.0, 60.0, 1000.0)},
+    "switch": {f"switch cost {j:g}{' (default)' if j == Config().sequence.switch_cost else ''}":
+               variant(sequence=dict(switch_cost=j)) for j in (2.0, 4.0, 6.0, 8.0, float("inf"))},
     "follow": {
         "sequence straight in frames": variant(sequence=dict(follow="frames")),
         "sequence following the distance (default)": Config(),

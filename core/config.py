@@ -185,6 +185,14 @@ class SequenceConfig:
     """Weight, in frames, of the prior in each reference's running cost statistics (hub suppression)."""
     penalty: float = 0.0
     """Cost of a trajectory point off the map, or of a frame without costs (0 = an average reference)."""
+    switch_cost: float = 8.0
+    """J: what a trajectory that enters the map within the window pays, in the costs' standard deviations, for its
+    frames before it (they then count at the lowest sum any trajectory had over them, not as average ones);
+    ``inf``: they count as average ones, as SeqSLAM. A vehicle coming onto the mapped stretch from outside it is
+    followed once its trajectory has out-scored the look-alike that led meanwhile by J, not once the look-alike's
+    frames have left the window. 8: the lowest cost that changes no figure where the queries start on the map, in
+    any variant of the opposite-view study (with 4, a weaker layout's answers jump to the map's far end:
+    docs/opposite-view.md, Entering the map)."""
     exclusion: int = 5
     """Confidence compares the best trajectory with the best one ending more than this many
     reference frames away."""
@@ -461,7 +469,8 @@ LIMITS: dict[str, dict[str, Bounds]] = {
         "costs_min_frames": _AT_LEAST_1,
         "radius": _AT_LEAST_0, "contrast_window": Bounds(2), "contrast_distance": _ABOVE_0,
         "reference_prior": _AT_LEAST_0,
-        "penalty": Bounds(), "exclusion": _AT_LEAST_0, "distance_window": _ABOVE_0, "distance_ratios": _ABOVE_0,
+        "penalty": Bounds(), "switch_cost": _AT_LEAST_0, "exclusion": _AT_LEAST_0, "distance_window": _ABOVE_0,
+        "distance_ratios": _ABOVE_0,
         "direction_reliability": Bounds(0.5, 0.999), "direction_scale": _ABOVE_0,
     },
     "layout": {

@@ -137,7 +137,7 @@ class Localizer:
         return SequenceFilter(seq.length, tuple(speeds), seq.radius, seq.penalty,
                               costs(self.map.n_frames, seq.length, window, seq.reference_prior),
                               seq.anchors, window // 2, route, seq.distance_window,
-                              seq.distance_window / seq.length)
+                              seq.distance_window / seq.length, seq.switch_cost)
 
     def _follow(self, progress: float | None) -> None:
         """Choose what the sequence filter's trajectories are straight in: at a traverse's first frame, and again
@@ -261,7 +261,7 @@ class Localizer:
         if not direction and along_sure >= self.config.heading.min_confidence:
             seq = self.sequence.choose(along)
         runner_up = self.sequence.runner_up(seq.position, cfg.exclusion)
-        margin = max(0.0, runner_up - seq.score) if np.isfinite(runner_up) else np.inf
+        margin = max(0.0, runner_up - seq.mean) if np.isfinite(runner_up) else np.inf
         t1 = time.perf_counter()
         t_costs = t0 + (self.sequence.costs.seconds - costs_before)  # the costs' share of the update
         warming = not self.sequence.full
@@ -471,7 +471,7 @@ def calibrate(refmap: ReferenceMap, config: Config, backbone: Backbone | None = 
                 ends = localizer.sequence.positions()
                 with np.errstate(invalid="ignore"):
                     ends = np.where(np.abs(ends - index) > 2 * seq.exclusion, ends, np.nan)
-                sequence_leads.append(leads(localizer.sequence.scores(), ends, seq.exclusion, PLACES))
+                sequence_leads.append(leads(localizer.sequence.means(), ends, seq.exclusion, PLACES))
             if progress is not None:
                 progress(1)
     return Calibration(_joined(sequence_leads), np.asarray(single, dtype=np.float64), settings_key(config), frames)

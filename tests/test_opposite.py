@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import os
 import select
 import signal
@@ -151,6 +152,23 @@ def test_a_query_camera_moving_away_from_its_view_finds_the_heading(scene, maps,
     estimates = _run(maps[map_side], queries, mosaic, sequence=False, declared=False)
     right, matchable = _right(estimates, maps[map_side], queries)
     assert ([e.heading for e in estimates].count("opposite"), int(right[matchable].sum())) == expected
+
+
+@pytest.mark.parametrize("switch_cost, expected", [(8.0, (25, 3)), (4.0, (28, 6)), (math.inf, (21, 0))])
+def test_a_vehicle_entering_the_map_from_outside_is_followed_once_its_trajectory_leads(scene, maps, mosaic,
+                                                                                      switch_cost, expected):
+    """A rear camera driving the mapped direction against the front camera's map starts 30 m before the map: its
+    first 8 frames have no counterpart and match a look-alike stretch (map frames 16-20). A trajectory entering the
+    map takes over once it leads the look-alike by the switch cost: with the default 8, 25 of 32 right and 3 of the
+    first 10 on the map; with 4, 28 and 6; scored by each trajectory's own mean it waits until the look-alike's
+    frames have left the window (21, 0)."""
+    queries = open_traverse(scene / "rear", options=LOOK_AT)
+    config = Config(sequence=SequenceConfig(switch_cost=switch_cost))
+    localizer = Localizer(maps["front"], config, mosaic)
+    estimates = [localizer.step(dataclasses.replace(f, camera=None)) for f in queries]
+    right, matchable = _right(estimates, maps["front"], queries)
+    assert int(matchable.sum()) == 32 and not matchable[:8].any()
+    assert (int(right[matchable].sum()), int(right[matchable][:10].sum())) == expected
 
 
 def test_a_same_direction_query_reports_same(scene, mosaic, tmp_path):

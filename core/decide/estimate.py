@@ -130,7 +130,8 @@ class Estimate:
     candidates: list[Candidate]
     """Top-k of the single-frame search, best single-frame score first."""
     sequence_score: float | None = None
-    """Mean cost along the best trajectory through the window (None without the sequence filter)."""
+    """The best trajectory's sequence score over the window (its mean cost, or entering the map within the window,
+    :func:`lostx.core.route.sequence.window_scores`; None without the sequence filter)."""
     speed: float | None = None
     """Estimated speed in reference frames per query frame (None before it is known)."""
     window: int = 0

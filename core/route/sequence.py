@@ -18,8 +18,18 @@ that turns, stops and changes of speed do not bend it. On it, frame t costs
 
     cost_t = min { c_t(r) : |r - r(t)| <= radius },  or the penalty where r(t) is off the map,
 
-and the trajectory's sequence score is the mean cost over the window's frames.
-The answer is the lowest-scoring trajectory's position at the newest frame.
+and the trajectory's sequence score is its mean cost over the window's n frames, or, where that is lower, the
+cost of entering the map: a trajectory that lies off the map before frame e_i (the vehicle came from outside
+it) pays J (``switch``) for those frames, which count at the lowest sum any trajectory had over them, not as
+average ones:
+
+    S_i = min( sum_t cost_t(i),  min_j sum_{t<e_i} cost_t(j) + J + sum_{t>=e_i} cost_t(i) ) / n
+
+so that a look-alike that led while the vehicle was still off the map keeps the answer only until the trajectory
+entering the map has out-scored it by J since, not until the look-alike's frames have left the window (J
+infinite: each trajectory's own mean, as SeqSLAM).
+The answer is the lowest-scoring trajectory's position at the newest frame; the confidence's margin and the
+direction's vote weigh the trajectories' own means (the borrowed frames say nothing for a place).
 
 A frame's anchors are its candidates and its ``anchors`` lowest costs: over the whole map where every
 cost is known, else among those around the nearest map frames of its search and where the live
@@ -87,11 +97,13 @@ class SequenceResult:
     speed: float
     """Reference frames per query frame at the newest frame (negative: the index falling)."""
     score: float
-    """Mean cost along the best trajectory (lower is better)."""
+    """The best trajectory's sequence score (lower is better; :func:`window_scores`)."""
     frames: int
     """Frames in the window."""
     trajectory: np.ndarray
     """(frames,) the best trajectory's reference position at each window frame, oldest first."""
+    mean: float
+    """Its own mean cost over the window's frames: its evidence against other places (:meth:`SequenceFilter.means`)."""
 
 
 class SequenceFilter:
@@ -99,7 +111,7 @@ class SequenceFilter:
 
     def __init__(self, length: int, speeds: tuple[float, ...], radius: int, penalty: float, costs: WindowCosts,
                  anchors: int = 0, neighbourhood: int = 0, route: np.ndarray | None = None,
-                 reach: float | None = None, spacing: float = 0.0) -> None:
+                 reach: float | None = None, spacing: float = 0.0, switch: float = np.inf) -> None:
         """``costs``: where the window's costs come from; ``anchors``: how many of a frame's lowest costs
         anchor trajectories besides its candidates; ``neighbourhood``: how far around each seed (a nearest
         map frame of the frame's search) they are looked for, where not every cost is known. ``route``: the
@@ -107,7 +119,8 @@ class SequenceFilter:
         :meth:`update` then gives the frame's progress); None: trajectories straight in frames. ``reach``: the
         window then holds the frames of the last this many metres (at most ``length`` of them), ``spacing``
         metres apart at least but for the newest (a frame nearer the one before the newest takes the newest's
-        place: at a high frame rate, or stopped, the window keeps its reach)."""
+        place: at a high frame rate, or stopped, the window keeps its reach). ``switch``: J, what a trajectory
+        pays for entering the map within the window (:func:`window_scores`)."""
         if length < 1 or not speeds:
             raise ValueError("the sequence window needs at least one frame and one speed")
         self.length = length
@@ -120,6 +133,7 @@ class SequenceFilter:
         self.route = None if route is None else np.asarray(route, dtype=np.float64)
         self.reach = reach
         self.spacing = float(spacing)
+        self.switch = float(switch)
         self.reset()
 
     def reset(self) -> None:
@@ -141,6 +155,7 @@ class SequenceFilter:
     def _changed(self) -> None:
         """The trajectories or their costs changed: their scores and positions are computed again when next asked
         (once a frame, however many of the frame's decisions ask)."""
+        self._scores: np.ndarray | None = None
         self._means: np.ndarray | None = None
         self._ends: np.ndarray | None = None
 
@@ -263,15 +278,45 @@ class SequenceFilter:
         if not keep.all():
             self._keep(keep)
 
+    def _counted(self) -> np.ndarray | slice:
+        """The window's frames that count (following the distance travelled: those within ``reach`` metres of the
+        newest)."""
+        if self.route is not None and self.reach is not None:
+            progress = np.asarray(self._progress)
+            return np.abs(progress[-1] - progress) <= self.reach + 1e-9
+        return slice(None)
+
+    def _window(self) -> np.ndarray:
+        """(trajectories, frames) the live trajectories' costs over the frames that count."""
+        return self._costs[:, self.length - len(self._times) :][:, self._counted()]
+
+    def _entered(self) -> np.ndarray:
+        """(trajectories,) the first of the counted frames at which each trajectory lies on the map (their number
+        where it never does)."""
+        if self.route is None:
+            times = np.asarray(self._times, dtype=np.float64)
+            where = np.rint(self._anchor_r[:, None] + self._speed[:, None] * (times - self._anchor_t[:, None]))
+            on_map = (where >= 0) & (where < self.costs.n_refs)
+        else:
+            progress = np.asarray(self._progress)
+            on_map = np.isfinite(self._at_route(self._anchor_p[:, None]
+                                                + self._speed[:, None] * (progress - self._anchor_q[:, None])))
+        on_map = on_map[:, self._counted()]
+        return np.where(on_map.any(axis=1), on_map.argmax(axis=1), on_map.shape[1])
+
     def scores(self) -> np.ndarray:
-        """Mean cost of every live trajectory over the frames in the window (following the distance travelled:
-        those within ``reach`` metres of the newest); read-only."""
+        """Every live trajectory's sequence score, what the answer is chosen by (:func:`window_scores`); read-only."""
+        if self._scores is None:
+            self._scores = _read_only(window_scores(self._window(), self._entered(), self.switch))
+        return self._scores
+
+    def means(self) -> np.ndarray:
+        """Every live trajectory's own mean cost over the window's frames; read-only. The evidence that weighs one
+        place against another (the direction's vote, the confidence's margin): a trajectory entering the map borrows
+        the frames before it from the best one, which says nothing for its own place."""
         if self._means is None:
-            window = self._costs[:, self.length - len(self._times) :]
-            if self.route is not None and self.reach is not None:
-                progress = np.asarray(self._progress)
-                window = window[:, np.abs(progress[-1] - progress) <= self.reach + 1e-9]
-            self._means = _read_only(window.sum(axis=1) / window.shape[1])
+            window = self._window()
+            self._means = _read_only(window.sum(axis=1) / max(window.shape[1], 1))
         return self._means
 
     def positions(self) -> np.ndarray:
@@ -300,9 +345,9 @@ class SequenceFilter:
         return np.where(inside, np.interp(along, self.route, np.arange(len(self.route))), np.nan)
 
     def best_by_sign(self) -> tuple[float, float]:
-        """The best score among the live trajectories on the map with the reference index rising, and with it
-        falling (inf where there is none): the evidence for the direction of travel."""
-        scores = self.scores()
+        """The lowest own mean cost (:meth:`means`) among the live trajectories on the map with the reference index
+        rising, and with it falling (inf where there is none): the evidence for the direction of travel."""
+        scores = self.means()
         ends = self.positions()
         on_map = np.isfinite(ends)
         rising, falling = on_map & (self._speed > 0), on_map & (self._speed < 0)
@@ -318,13 +363,13 @@ class SequenceFilter:
     def _best(self, sign: int = 0) -> SequenceResult:
         scores = self.scores()
         if len(scores) == 0:
-            return SequenceResult(np.nan, np.nan, np.inf, len(self._times), np.full(len(self._times), np.nan))
+            return _nowhere(len(self._times))
         ends = self.positions()
         # Lowest score among the trajectories still on the map (along ``sign``); ties go to the slower trajectory,
         # then the lower position, then the newer anchor, then a rising reference index.
         scores = np.where(np.isfinite(ends) & (self._speed * sign >= 0), scores, np.inf)
         if not np.isfinite(scores).any():
-            return SequenceResult(np.nan, np.nan, np.inf, len(self._times), np.full(len(self._times), np.nan))
+            return _nowhere(len(self._times))
         tied = np.flatnonzero(scores == scores.min())
         speed = self._speed[tied]
         best = tied[np.lexsort((-speed, -self._anchor_t[tied], ends[tied], np.abs(speed)))[0]]
@@ -342,13 +387,15 @@ class SequenceFilter:
             score=float(scores[best]),
             frames=len(self._times),
             trajectory=trajectory,
+            mean=float(self.means()[best]),
         )
 
     def runner_up(self, position: float, exclusion: float) -> float:
-        """Best score among trajectories ending more than ``exclusion`` reference frames from ``position``."""
+        """The lowest own mean cost (:meth:`means`) among trajectories ending more than ``exclusion`` reference frames
+        from ``position``."""
         with np.errstate(invalid="ignore"):
             far = np.abs(self.positions() - position) > exclusion
-        return float(self.scores()[far].min()) if far.any() else np.inf
+        return float(self.means()[far].min()) if far.any() else np.inf
 
     def window(self, width: int) -> tuple[np.ndarray, np.ndarray]:
         """(frames, 2 * width + 1) costs around the best trajectory at each window frame, oldest first,
@@ -376,7 +423,8 @@ class SequenceFilter:
             "t": self._t, "times": list(self._times), "progress": list(self._progress),
             "anchor_t": self._anchor_t, "anchor_q": self._anchor_q, "anchor_r": self._anchor_r,
             "speed": self._speed, "costs": self._costs, "window_costs": self.costs.state(),
-            "best": None if best is None else [best.position, best.speed, best.score, best.frames, best.trajectory],
+            "best": None if best is None else [best.position, best.speed, best.score, best.frames, best.trajectory,
+                                               best.mean],
         }
 
     def restore(self, state: dict) -> None:
@@ -393,8 +441,39 @@ class SequenceFilter:
         self._costs = state["costs"].astype(np.float64)
         self._changed()
         best = state["best"]
+        # A state saved before the own mean was kept: the score was the mean then.
         self._best_result = None if best is None else SequenceResult(float(best[0]), float(best[1]), float(best[2]),
-                                                                     int(best[3]), np.asarray(best[4]))
+                                                                     int(best[3]), np.asarray(best[4]),
+                                                                     float(best[5] if len(best) > 5 else best[2]))
+
+
+def _nowhere(frames: int) -> SequenceResult:
+    """The answer where no trajectory lies on the map."""
+    return SequenceResult(np.nan, np.nan, np.inf, frames, np.full(frames, np.nan), np.inf)
+
+
+def window_scores(costs: np.ndarray, entered: np.ndarray, switch: float) -> np.ndarray:
+    """The sequence score of trajectories whose costs over the window's n frames are the rows of ``costs`` (oldest
+    frame first) and that first lie on the map at frame ``entered`` e_i: each one's mean cost, or where lower and it
+    entered the map within the window, its cost after taking over there from the lowest sum any row had before,
+    paying J = ``switch``:
+
+        S_i = min( sum_t c_i(t),  min_j sum_{t<e_i} c_j(t) + J + sum_{t>=e_i} c_i(t) ) / n      (0 < e_i < n)
+    """
+    n = costs.shape[1]
+    if n == 0:
+        return np.zeros(len(costs))
+    prefix = np.cumsum(costs, axis=1)  # prefix[:, e - 1]: sum_{t<e}
+    total = prefix[:, -1]
+    entering = (entered > 0) & (entered < n)
+    if not np.isfinite(switch) or not entering.any():
+        return total / n
+    rows = np.flatnonzero(entering)
+    before = prefix[rows, entered[rows] - 1]
+    envelope = prefix.min(axis=0)[entered[rows] - 1]
+    scores = total.copy()
+    scores[rows] = np.minimum(total[rows], envelope + switch + total[rows] - before)
+    return scores / n
 
 
 def _read_only(values: np.ndarray) -> np.ndarray:
