@@ -23,43 +23,10 @@ import tempfile
 import warnings
 from pathlib import Path
 
-import numpy as np
-
 from common import RESULTS, print_table, write_json
-from lostx.core import Config, Localizer
-from lostx.core.match.matcher import PlaceMatcher
-from study_heading import MOTIONS, PAIRINGS
-from study_layout import MODES, RATES, TOLERANCE, Study, runs
-
-ENTERED = 10
-"""Queries counted as just after entering the map: the first this many that have a counterpart."""
-
-
-def run_pairing(config: Config, pairing: str, every: int, study: Study) -> dict[str, int]:
-    """Recall@1 single frame and sequence over the runs of ``pairing`` at every ``every``-th frame, and the sequence's
-    over the first ``ENTERED`` queries with a counterpart where the run starts off the map."""
-    out = {"queries": 0, "single": 0, "sequence": 0, "entering": 0, "entering right": 0}
-    for run in runs(PAIRINGS[pairing], every):
-        refmap = study.refmap(PAIRINGS[pairing][0], config, run)
-        matcher = PlaceMatcher(refmap, config, study.backbone)
-        matches = [matcher.match_description(matcher.describe(f)) for f in run.frames]
-        counted = [np.flatnonzero(np.hypot(*(run.map_looks - look).T) <= TOLERANCE) for look in run.looks]
-        starts_off = len(counted[0]) == 0
-        for mode in MODES:
-            localizer = Localizer(refmap, dataclasses.replace(config, sequence=dataclasses.replace(
-                config.sequence, enabled=mode == "sequence")), study.backbone)
-            seen = 0
-            for frame, match, truth in zip(run.frames, matches, counted):
-                right = localizer.update(frame, match).match_index in truth
-                if not len(truth):
-                    continue
-                out["queries"] += mode == "single"
-                out[mode] += right
-                if mode == "sequence" and starts_off and seen < ENTERED:
-                    out["entering"] += 1
-                    out["entering right"] += right
-                seen += 1
-    return out
+from lostx.core import Config
+from study_heading import PAIRINGS, sixteen_runs
+from study_layout import ENTERED, TOLERANCE, Study
 
 
 def main() -> None:
@@ -76,11 +43,8 @@ def main() -> None:
         study = Study(Path(tmp))
         for cost in args.costs:
             name = f"switch cost {cost:g}" + (" (default)" if cost == default else "")
-            runs_out = {}
-            for rate, every in RATES.items():
-                for motion, base in MOTIONS.items():
-                    config = dataclasses.replace(base, sequence=dataclasses.replace(base.sequence, switch_cost=cost))
-                    runs_out[f"{rate}, {motion}"] = {p: run_pairing(config, p, every, study) for p in PAIRINGS}
+            runs_out = sixteen_runs(study, lambda base, cost=cost: dataclasses.replace(
+                base, sequence=dataclasses.replace(base.sequence, switch_cost=cost)), name)
             results[name] = runs_out
             every_run = [o for run in runs_out.values() for o in run.values()]
             rows.append([name, *[sum(run[p]["sequence"] for run in runs_out.values()) for p in PAIRINGS],
@@ -88,7 +52,6 @@ def main() -> None:
                          sum(o["queries"] for o in every_run),
                          f"{sum(o['entering right'] for o in every_run)}/{sum(o['entering'] for o in every_run)}",
                          runs_out["2 Hz, ego poses"]["S1"]["sequence"], runs_out["2 Hz, ego poses"]["S2"]["sequence"]])
-            print(f"{name} done", flush=True)
     print_table("Recall@1 at 7.5 m with the sequence filter over the sixteen runs: per pairing, all, the single frame "
                 "(all), of queries; the first 10 queries on the map where the run starts off it; S1 and S2 at 2 Hz with "
                 "the ego poses", ["switch cost", *[f"{p} sequence" for p in PAIRINGS], "sequence", "single", "of",

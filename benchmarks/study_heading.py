@@ -23,6 +23,7 @@ import argparse
 import dataclasses
 import tempfile
 import warnings
+from collections.abc import Callable
 from contextlib import nullcontext
 from pathlib import Path
 from unittest import mock
@@ -63,9 +64,21 @@ changed, and the layout's vote in place of the matcher's (None: the matcher's)."
 
 def run_pairing(config: Config, pairing: str, every: int, study: Study) -> dict[str, int]:
     counts = study.counts(config, PAIRINGS[pairing], every)
-    single = counts["single"]
-    return {"queries": single["counted"], "single": single["right"], "sequence": counts["sequence"]["right"],
-            "heading": single["opposite"], "sure": single["sure"], "frames": single["frames"]}
+    single, sequence = counts["single"], counts["sequence"]
+    return {"queries": single["counted"], "single": single["right"], "sequence": sequence["right"],
+            "heading": single["opposite"], "sure": single["sure"], "frames": single["frames"],
+            "entering": sequence["entering"], "entering right": sequence["entering right"]}
+
+
+def sixteen_runs(study: Study, changed: Callable[[Config], Config], label: str) -> dict[str, dict[str, dict[str, int]]]:
+    """:func:`run_pairing` of every pairing at each rate with each motion source, its configuration ``changed`` from
+    the motion source's; keyed "rate, motion", each column said done (after ``label``) as it ends."""
+    out = {}
+    for rate, every in RATES.items():
+        for motion, base in MOTIONS.items():
+            out[f"{rate}, {motion}"] = {p: run_pairing(changed(base), p, every, study) for p in PAIRINGS}
+            print(f"{label}: {rate}, {motion} done", flush=True)
+    return out
 
 
 def main() -> None:
@@ -84,19 +97,15 @@ def main() -> None:
         for name in names:
             changes, vote = VARIANTS[name]
             patch = mock.patch("lostx.core.match.matcher.layout_vote", vote) if vote is not None else nullcontext()
-            results[name] = {}
             with patch:
-                for rate, every in RATES.items():
-                    for motion, base in MOTIONS.items():
-                        config = dataclasses.replace(base, heading=dataclasses.replace(base.heading, **changes))
-                        out = {p: run_pairing(config, p, every, study) for p in PAIRINGS}
-                        results[name][f"{rate}, {motion}"] = out
-                        rows.append([name if not any(row[0] == name for row in rows) else "", f"{rate}, {motion}",
-                                     *[f"{o['heading']} ({o['sure']}) / {o['frames']}" for o in out.values()],
-                                     *[f"{o['single']}/{o['sequence']} of {o['queries']}" for o in out.values()],
-                                     sum(o["heading"] for o in out.values()),
-                                     sum(o["single"] + o["sequence"] for o in out.values())])
-                        print(f"{name}: {rate}, {motion} done", flush=True)
+                results[name] = sixteen_runs(study, lambda base, changes=changes: dataclasses.replace(
+                    base, heading=dataclasses.replace(base.heading, **changes)), name)
+            for column, out in results[name].items():
+                rows.append([name if not any(row[0] == name for row in rows) else "", column,
+                             *[f"{o['heading']} ({o['sure']}) / {o['frames']}" for o in out.values()],
+                             *[f"{o['single']}/{o['sequence']} of {o['queries']}" for o in out.values()],
+                             sum(o["heading"] for o in out.values()),
+                             sum(o["single"] + o["sequence"] for o in out.values())])
     print_table("The heading, undeclared: frames right (of them sure) / frames; Recall@1 at 7.5 m, single/sequence",
                 ["variant", "frames, motion", *[f"{p} heading" for p in PAIRINGS], *[f"{p} R@1" for p in PAIRINGS],
                  "heading sum", "R@1 sum"], rows)

@@ -21,9 +21,9 @@ import argparse
 import dataclasses
 import tempfile
 import warnings
+from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Iterator
 from unittest import mock
 
 import numpy as np
@@ -32,8 +32,8 @@ from common import RESULTS, print_table, write_json
 from lostx.core.layout.describer import LiveLayout, Placed
 from lostx.core.layout.grid import Gathering
 from lostx.core.motion.pose import compose
-from study_heading import MOTIONS, PAIRINGS, run_pairing
-from study_layout import RATES, TOLERANCE, Study
+from study_heading import PAIRINGS, sixteen_runs
+from study_layout import TOLERANCE, Study
 
 
 @contextmanager
@@ -66,13 +66,9 @@ def main() -> None:
             name = f"sideways shift +-{shift:g} m"
             results[name] = {}
             for lane, metres in lanes.items():
-                runs = {}
                 with one_lane_over(metres):
-                    for rate, every in RATES.items():
-                        for motion, base in MOTIONS.items():
-                            config = dataclasses.replace(base, layout=dataclasses.replace(base.layout,
-                                                                                          across_shift=shift))
-                            runs[f"{rate}, {motion}"] = {p: run_pairing(config, p, every, study) for p in PAIRINGS}
+                    runs = sixteen_runs(study, lambda base, shift=shift: dataclasses.replace(
+                        base, layout=dataclasses.replace(base.layout, across_shift=shift)), f"{name}, {lane}")
                 results[name][lane] = runs
                 every_run = [o for run in runs.values() for o in run.values()]
                 rows.append([name if not any(row[0] == name for row in rows) else "", lane,
@@ -80,7 +76,6 @@ def main() -> None:
                              sum(o["queries"] for o in every_run), sum(o["heading"] for o in every_run),
                              sum(o["frames"] for o in every_run),
                              *[sum(run[p]["single"] + run[p]["sequence"] for run in runs.values()) for p in PAIRINGS]])
-                print(f"{name}, {lane} done", flush=True)
     print_table("Queries a lane over: Recall@1 at 7.5 m over the sixteen runs (single, sequence, of queries), "
                 "heading right (of frames), and single + sequence per pairing",
                 ["sideways reach", "queries", "single", "sequence", "of", "heading", "of frames",

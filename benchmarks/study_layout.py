@@ -44,6 +44,8 @@ SCENE = data_dir() / "nuscenes-frontrear" / "scene-0523"
 SETUPS = {"S1": ("rear", "front", False), "S2": ("front", "rear", True)}
 """Map camera, query camera, queries played backwards."""
 MODES = ("single", "sequence")
+ENTERED = 10
+"""Queries counted as just after entering the map, where a run starts off it: the first this many with a counterpart."""
 TOLERANCE = 7.5
 
 
@@ -211,7 +213,8 @@ class Study:
     def counts(self, config: Config, pairing: tuple[str, str, bool], every: int = 1) -> dict[str, dict[str, int]]:
         """:func:`scored`'s counts per mode over the runs of ``pairing`` at every ``every``-th frame, summed, with the
         frames played (``frames``)."""
-        total = {mode: {"counted": 0, "right": 0, "opposite": 0, "sure": 0, "frames": 0} for mode in MODES}
+        total = {mode: {"counted": 0, "right": 0, "opposite": 0, "sure": 0, "entering": 0, "entering right": 0,
+                        "frames": 0} for mode in MODES}
         for run in runs(pairing, every):
             for mode, c in scored(self.refmap(pairing[0], config, run), run.frames, run.looks, run.map_looks, config,
                                   self.backbone).items():
@@ -256,25 +259,31 @@ def scored(refmap: ReferenceMap, frames: list, looks: np.ndarray, map_looks: np.
            backbone) -> dict[str, dict[str, int]]:
     """``frames`` (their look-at points ``looks``) through localizers of ``config`` on ``refmap`` (its frames' look-at
     points ``map_looks``), single frame and with the sequence filter: per mode the queries with a counterpart within
-    ``TOLERANCE`` (counted), those answered within it (right), and the frames whose heading is opposite, and opposite
-    and sure (at least ``heading.min_confidence``)."""
+    ``TOLERANCE`` (counted), those answered within it (right), the frames whose heading is opposite, and opposite
+    and sure (at least ``heading.min_confidence``), and where the frames start off the map, the first ``ENTERED``
+    queries with a counterpart (entering) and of them those right (entering right)."""
     matcher = PlaceMatcher(refmap, config, backbone)
     matches = [matcher.match_description(matcher.describe(f)) for f in frames]
+    distances = [np.hypot(*(map_looks - look).T) for look in looks]
+    starts_off = distances[0].min() > TOLERANCE
     out = {}
     for mode in MODES:
         run_config = dataclasses.replace(config, sequence=dataclasses.replace(config.sequence,
                                                                               enabled=mode == "sequence"))
         localizer = Localizer(refmap, run_config, backbone)
-        counts = {"counted": 0, "right": 0, "opposite": 0, "sure": 0}
-        for k, (frame, match) in enumerate(zip(frames, matches)):
+        counts = {"counted": 0, "right": 0, "opposite": 0, "sure": 0, "entering": 0, "entering right": 0}
+        for frame, match, distance in zip(frames, matches, distances):
             estimate = localizer.update(frame, match)
             opposite = estimate.heading == "opposite"
             counts["opposite"] += opposite
             counts["sure"] += opposite and estimate.heading_confidence >= config.heading.min_confidence
-            distance = np.hypot(*(map_looks - looks[k]).T)
             if distance.min() <= TOLERANCE:
+                right = bool(distance[estimate.match_index] <= TOLERANCE)
+                if starts_off and counts["counted"] < ENTERED:
+                    counts["entering"] += 1
+                    counts["entering right"] += right
                 counts["counted"] += 1
-                counts["right"] += bool(distance[estimate.match_index] <= TOLERANCE)
+                counts["right"] += right
         out[mode] = counts
     return out
 

@@ -48,8 +48,8 @@ def maps(tmp_path_factory, scene, mosaic) -> dict[str, ReferenceMap]:
     return out
 
 
-def _run(refmap, queries, mosaic, sequence: bool = True, declared: bool = True) -> list:
-    config = Config(sequence=SequenceConfig(enabled=sequence))
+def _run(refmap, queries, mosaic, sequence: bool | SequenceConfig = True, declared: bool = True) -> list:
+    config = Config(sequence=sequence if isinstance(sequence, SequenceConfig) else SequenceConfig(enabled=sequence))
     localizer = Localizer(refmap, config, mosaic)
     frames = list(queries)
     if not declared:
@@ -163,9 +163,7 @@ def test_a_vehicle_entering_the_map_from_outside_is_followed_once_its_trajectory
     first 10 on the map; with 4, 28 and 6; scored by each trajectory's own mean it waits until the look-alike's
     frames have left the window (21, 0)."""
     queries = open_traverse(scene / "rear", options=LOOK_AT)
-    config = Config(sequence=SequenceConfig(switch_cost=switch_cost))
-    localizer = Localizer(maps["front"], config, mosaic)
-    estimates = [localizer.step(dataclasses.replace(f, camera=None)) for f in queries]
+    estimates = _run(maps["front"], queries, mosaic, SequenceConfig(switch_cost=switch_cost), declared=False)
     right, matchable = _right(estimates, maps["front"], queries)
     assert int(matchable.sum()) == 32 and not matchable[:8].any()
     assert (int(right[matchable].sum()), int(right[matchable][:10].sum())) == expected

@@ -286,38 +286,44 @@ class SequenceFilter:
             return np.abs(progress[-1] - progress) <= self.reach + 1e-9
         return slice(None)
 
-    def _window(self) -> np.ndarray:
-        """(trajectories, frames) the live trajectories' costs over the frames that count."""
-        return self._costs[:, self.length - len(self._times) :][:, self._counted()]
-
-    def _entered(self) -> np.ndarray:
-        """(trajectories,) the first of the counted frames at which each trajectory lies on the map (their number
-        where it never does)."""
+    def _lines(self, rows: np.ndarray | slice) -> np.ndarray:
+        """(len(rows), frames) the reference positions of the trajectories ``rows`` at each window frame, oldest
+        first (fractional; following the distance travelled, NaN beyond the map's ends)."""
         if self.route is None:
             times = np.asarray(self._times, dtype=np.float64)
-            where = np.rint(self._anchor_r[:, None] + self._speed[:, None] * (times - self._anchor_t[:, None]))
-            on_map = (where >= 0) & (where < self.costs.n_refs)
-        else:
-            progress = np.asarray(self._progress)
-            on_map = np.isfinite(self._at_route(self._anchor_p[:, None]
-                                                + self._speed[:, None] * (progress - self._anchor_q[:, None])))
-        on_map = on_map[:, self._counted()]
+            return self._anchor_r[rows, None] + self._speed[rows, None] * (times - self._anchor_t[rows, None])
+        progress = np.asarray(self._progress)
+        along = self._anchor_p[rows, None] + self._speed[rows, None] * (progress - self._anchor_q[rows, None])
+        return self._at_route(along)
+
+    def _entered(self, counted: np.ndarray | slice) -> np.ndarray:
+        """(trajectories,) the first of the ``counted`` frames at which each trajectory lies on the map (their number
+        where it never does)."""
+        where = np.rint(self._lines(slice(None)))
+        on_map = ((where >= 0) & (where < self.costs.n_refs))[:, counted]
         return np.where(on_map.any(axis=1), on_map.argmax(axis=1), on_map.shape[1])
+
+    def _evaluate(self) -> None:
+        """Each live trajectory's own mean and its sequence score, from one look at the window."""
+        counted = self._counted()
+        window = self._costs[:, self.length - len(self._times) :][:, counted]
+        self._means = _read_only(window.sum(axis=1) / max(window.shape[1], 1))
+        self._scores = (self._means if not np.isfinite(self.switch)
+                        else _read_only(window_scores(window, self._entered(counted), self.switch)))
 
     def scores(self) -> np.ndarray:
         """Every live trajectory's sequence score, what the answer is chosen by (:func:`window_scores`); read-only."""
         if self._scores is None:
-            self._scores = _read_only(window_scores(self._window(), self._entered(), self.switch))
-        return self._scores
+            self._evaluate()
+        return self._scores  # type: ignore[return-value]
 
     def means(self) -> np.ndarray:
         """Every live trajectory's own mean cost over the window's frames; read-only. The evidence that weighs one
         place against another (the direction's vote, the confidence's margin): a trajectory entering the map borrows
         the frames before it from the best one, which says nothing for its own place."""
         if self._means is None:
-            window = self._window()
-            self._means = _read_only(window.sum(axis=1) / max(window.shape[1], 1))
-        return self._means
+            self._evaluate()
+        return self._means  # type: ignore[return-value]
 
     def positions(self) -> np.ndarray:
         """Position of every live trajectory at the newest frame (a reference index, fractional; NaN off the map
@@ -373,13 +379,10 @@ class SequenceFilter:
         tied = np.flatnonzero(scores == scores.min())
         speed = self._speed[tied]
         best = tied[np.lexsort((-speed, -self._anchor_t[tied], ends[tied], np.abs(speed)))[0]]
+        trajectory = self._lines(slice(best, best + 1))[0]
         if self.route is None:
-            times = np.asarray(self._times)
-            trajectory = self._anchor_r[best] + self._speed[best] * (times - self._anchor_t[best])
             rate = float(self._speed[best])
         else:
-            trajectory = self._at_route(self._anchor_p[best : best + 1]
-                                        + self._speed[best] * (np.asarray(self._progress) - self._anchor_q[best]))
             rate = float(trajectory[-1] - trajectory[-2]) if len(trajectory) > 1 else 0.0
         return SequenceResult(
             position=float(ends[best]),
