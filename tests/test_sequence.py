@@ -65,12 +65,14 @@ def given_costs(length: int, speeds: tuple[float, ...], radius: int, penalty: fl
     return SequenceFilter(length, speeds, radius, penalty, RingCosts(n_refs, length), switch=switch)
 
 
-def synthetic_traverse(rng: np.random.Generator, n_frames: int, n_refs: int) -> list:
+def synthetic_traverse(rng: np.random.Generator, n_frames: int, n_refs: int, first: int = 5) -> list:
+    """Frames whose true place is map frame ``first + t`` (off the map while that is negative)."""
     frames = []
     for t in range(n_frames):
         costs = rng.normal(size=n_refs).astype(np.float32)
-        true = 5 + t
-        costs[true] -= 2.5  # the true place stands out a little
+        true = first + t
+        if 0 <= true < n_refs:
+            costs[true] -= 2.5  # the true place stands out a little
         anchors = np.argsort(costs)[:4]
         speeds = np.array(SPEEDS) if t % 3 else np.array([0.8, 1.0])  # e.g. a tracker narrowing the band
         frames.append((anchors, None if t == 7 else costs, speeds))  # frame 7: no costs (rejected input)
@@ -78,12 +80,17 @@ def synthetic_traverse(rng: np.random.Generator, n_frames: int, n_refs: int) -> 
 
 
 @pytest.mark.parametrize("length, radius, switch", [(5, 0, np.inf), (8, 1, np.inf), (1, 0, np.inf), (8, 1, 1.5),
-                                                    (5, 0, 4.0)])
+                                                    (5, 0, 2.0), (8, 0, 4.0)])
 def test_online_equals_batch_on_a_synthetic_traverse(rng, length, radius, switch):
-    frames = synthetic_traverse(rng, 30, 60)
+    # With a switch cost the vehicle comes onto the map at frame 6, so that entering trajectories take part.
+    frames = synthetic_traverse(rng, 30, 60, first=5 if np.isinf(switch) else -6)
     online = given_costs(length, SPEEDS, radius, 0.3, 60, switch)
     got = [online.update(c, a, None, s) for a, c, s in frames]
     want = batch_answers(frames, length, radius, 0.3, switch=switch)
+    if np.isfinite(switch):
+        # The switch cost moves some answers here: the comparison covers the entering rule.
+        unswitched = batch_answers(frames, length, radius, 0.3, switch=np.inf)
+        assert any(a[0] != b[0] for a, b in zip(want, unswitched))
     for g, (position, speed, score) in zip(got, want):
         np.testing.assert_equal((g.position, g.speed), (position, speed))
         assert g.score == pytest.approx(score, rel=1e-6, abs=1e-6)
