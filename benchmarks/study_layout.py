@@ -158,6 +158,9 @@ FAMILIES: dict[str, dict[str, Config]] = {
         "vehicles weighted 1": variant(layout=dict(vehicle_weight=1.0)),
         "vehicles left out": variant(layout=dict(vehicle_weight=0.0)),
     },
+    "buildings": {f"buildings weighted {w:g}{' (default)' if w == Config().layout.building_weight else ''}"
+                  if w else "buildings left out": variant(layout=dict(building_weight=w))
+                  for w in (1.0, 0.75, 0.5, 0.25, 0.0)},
     "turns": {
         "no turn": variant(layout=dict(turns=(0.0,))),
         "+-1 degree": variant(layout=dict(turns=(-1.0, 0.0, 1.0))),

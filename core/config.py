@@ -260,6 +260,10 @@ class LayoutConfig:
     and the camera's mounting are known to a degree or two."""
     vehicle_weight: float = 0.5
     """Weight of the vehicles' channel against the others' 1: parked cars come and go between visits."""
+    building_weight: float = 0.5
+    """Weight of the buildings' channel against the others' 1: a facade's foot lies at the side of the road, seen at a
+    grazing angle and behind parked cars and trees, so each end sees a different part of it (measured:
+    docs/opposite-view.md, The buildings' weight)."""
     min_cells: int = 25
     """Cells both grids must observe for a comparison to count."""
     weight: float = 3.0
@@ -477,7 +481,7 @@ LIMITS: dict[str, dict[str, Bounds]] = {
         "cell": Bounds(0.1, 10), "length": Bounds(1, 200), "width": Bounds(1, 200), "centre": Bounds(0, 200),
         "max_range": _ABOVE_0, "blur": Bounds(0, 20), "query_travel": _AT_LEAST_0, "map_travel": _AT_LEAST_0,
         "max_frames": Bounds(1, 200), "across_shift": Bounds(0, 20), "turns": Bounds(-90, 90), "vehicle_weight": Bounds(0, 1),
-        "min_cells": _AT_LEAST_1, "weight": Bounds(0, 100),
+        "building_weight": Bounds(0, 1), "min_cells": _AT_LEAST_1, "weight": Bounds(0, 100),
     },
     "motion": {"visual_width": Bounds(64, 8192)},
     "heading": {"declared_prior": Bounds(0.5, 1), "vote_reliability": Bounds(0.5, 0.999),

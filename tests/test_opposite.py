@@ -70,7 +70,7 @@ def test_the_papers_setup_finds_the_opposite_heading_without_being_told(scene, m
     # The first frame's heading is its own vote alone (0.53 the wrong way, not sure); every later one is right.
     assert headings[1:].count("opposite") == 39 and estimates[0].heading_confidence < 0.9
     right, matchable = _right(estimates, maps["rear"], queries)
-    assert (int(right[matchable].sum()), int(matchable.sum())) == (27, 34)  # measured, single frame, with the layout
+    assert (int(right[matchable].sum()), int(matchable.sum())) == (28, 34)  # measured, single frame, with the layout
     assert not any(e.state == "localized" and not r for e, r in zip(estimates, right))
 
 
@@ -85,9 +85,9 @@ def test_the_road_driven_the_other_way_is_followed_with_a_falling_index(scene, m
     # Once the heading is sure, the declared front camera viewing the map the opposite way drives it the
     # other way: the reference index falls as the query advances.
     settled = [e for e in estimates if not e.warming_up and e.heading_confidence >= 0.9]
-    assert len(settled) == 21 and all(e.speed < 0 for e in settled)
+    assert len(settled) == 26 and all(e.speed < 0 for e in settled)
     right, matchable = _right(estimates, maps["front"], queries)
-    assert (int(right[matchable].sum()), int(matchable.sum())) == (31, 32)  # measured, sequence, with the layout
+    assert (int(right[matchable].sum()), int(matchable.sum())) == (30, 32)  # measured, sequence, with the layout
     assert not any(e.state == "localized" for e in estimates)  # 40 map frames: too few to be sure of anything
 
 
@@ -95,7 +95,7 @@ def test_the_road_driven_the_other_way_is_followed_with_a_falling_index(scene, m
 def test_the_road_driven_the_other_way_one_lane_over_is_still_followed(scene, maps, mosaic, monkeypatch, metres):
     """A car driving the mapped road the other way drives another lane. Each query's grid gathered as by a camera
     3.5 m to its right (where traffic keeps right) or left, the comparison's sideways shifts still find its
-    stretches: measured, 29 and 30 of 32 right with the sequence (22 and 17 when it searched 2 m sideways)."""
+    stretches: measured, 29 of 32 right with the sequence either side (22 and 17 when it searched 2 m sideways)."""
     from lostx.core.layout.describer import LiveLayout
     from lostx.core.motion.pose import compose
 
@@ -110,23 +110,23 @@ def test_the_road_driven_the_other_way_one_lane_over_is_still_followed(scene, ma
     estimates = _run(maps["front"], queries, mosaic)
     right, matchable = _right(estimates, maps["front"], queries)
     assert int(matchable.sum()) == 32
-    assert int(right[matchable].sum()) == {-3.5: 29, 3.5: 30}[metres]
+    assert int(right[matchable].sum()) == {-3.5: 29, 3.5: 29}[metres]
 
 
 def test_a_heading_found_late_answers_from_a_window_of_its_own_matches(scene, maps, mosaic):
     """The road driven the other way with the declared front camera taken as a vehicle driving the mapped direction
-    (``declared_prior`` 0.9): the heading starts wrong and the evidence turns it at frame 19. While it was unsure the
+    (``declared_prior`` 0.9): the heading starts wrong and the evidence turns it at frame 14. While it was unsure the
     frames' matches under the other heading filled a window of their own, so the answers after the turn follow them
-    (10 of the 13 frames with a counterpart right; 0 of 13 when the window held the wrong heading's matches)."""
+    (17 of the 18 frames with a counterpart right; 14 of 18 when the turn starts a fresh window)."""
     traverse = open_traverse(scene / "rear", options=LOOK_AT).reversed()
     queries = list(traverse)
     config = Config(heading=HeadingConfig(declared_prior=0.9))
     localizer = Localizer(maps["front"], config, mosaic)
     estimates = [localizer.step(f) for f in queries]
     turned = next(k for k, e in enumerate(estimates) if e.heading == "opposite")
-    assert turned == 19 and all(e.heading == "opposite" for e in estimates[turned:])
+    assert turned == 14 and all(e.heading == "opposite" for e in estimates[turned:])
     right, matchable = _right(estimates, maps["front"], traverse)
-    assert (int(right[turned:][matchable[turned:]].sum()), int(matchable[turned:].sum())) == (10, 13)
+    assert (int(right[turned:][matchable[turned:]].sum()), int(matchable[turned:].sum())) == (17, 18)
     # Stopped and restored while unsure (a service restarted), the other heading's window carries over.
     before = Localizer(maps["front"], config, mosaic)
     for frame in queries[:16]:
@@ -138,8 +138,8 @@ def test_a_heading_found_late_answers_from_a_window_of_its_own_matches(scene, ma
     assert [after.step(f).match_index for f in queries[16:]] == [e.match_index for e in estimates[16:]]
 
 
-@pytest.mark.parametrize("map_side, query_side, reverse, expected", [("front", "rear", False, (38, 29)),
-                                                                   ("rear", "front", True, (37, 30))])
+@pytest.mark.parametrize("map_side, query_side, reverse, expected", [("front", "rear", False, (40, 28)),
+                                                                   ("rear", "front", True, (37, 33))])
 def test_a_query_camera_moving_away_from_its_view_finds_the_heading(scene, maps, mosaic, map_side, query_side,
                                                                       reverse, expected):
     """The cameras the other way round: a rear camera on a car driving the mapped direction against the front camera's
@@ -154,14 +154,14 @@ def test_a_query_camera_moving_away_from_its_view_finds_the_heading(scene, maps,
     assert ([e.heading for e in estimates].count("opposite"), int(right[matchable].sum())) == expected
 
 
-@pytest.mark.parametrize("switch_cost, expected", [(8.0, (25, 3)), (4.0, (28, 6)), (math.inf, (21, 0))])
+@pytest.mark.parametrize("switch_cost, expected", [(8.0, (25, 3)), (4.0, (28, 6)), (math.inf, (20, 0))])
 def test_a_vehicle_entering_the_map_from_outside_is_followed_once_its_trajectory_leads(scene, maps, mosaic,
                                                                                       switch_cost, expected):
     """A rear camera driving the mapped direction against the front camera's map starts 30 m before the map: its
     first 8 frames have no counterpart and match a look-alike stretch (map frames 16-20). A trajectory entering the
     map takes over once it leads the look-alike by the switch cost: with the default 8, 25 of 32 right and 3 of the
     first 10 on the map; with 4, 28 and 6; scored by each trajectory's own mean it waits until the look-alike's
-    frames have left the window (21, 0)."""
+    frames have left the window (20, 0)."""
     queries = open_traverse(scene / "rear", options=LOOK_AT)
     estimates = _run(maps["front"], queries, mosaic, SequenceConfig(switch_cost=switch_cost), declared=False)
     right, matchable = _right(estimates, maps["front"], queries)
@@ -391,7 +391,9 @@ def test_the_map_views_a_bend_from_its_other_end_as_the_true_camera_does(scene, 
     """S1's first front frames look at a bend that their true rear frames (the data's ground truth) view from its
     other end with axes up to 15 degrees short of opposite. The turn the map's own route gives for that other end is
     the true angle between the two cameras, and the map's grids gathered as that camera sees them fit the front
-    frames better than the rear camera's own grids turned 180 degrees."""
+    frames better than the rear camera's own grids turned 180 degrees wherever the bend turns them by more than the
+    comparison's own small turns reach (9 degrees or more); where it turns them by 6 degrees or less, the two fit
+    alike."""
     import csv
 
     from lostx.core.layout.compare import GridStack, similarity
@@ -409,7 +411,7 @@ def test_the_map_views_a_bend_from_its_other_end_as_the_true_camera_does(scene, 
         truth = list(csv.DictReader(f))[:10]
     frames = [dataclasses.replace(f, camera=None) for f in open_traverse(scene / "front").subset(range(10))]
     matcher = PlaceMatcher(rear, Config(), mosaic)
-    gains = []
+    gains, bent = [], []
     for frame, pair in zip(frames, truth):
         j = int(pair["best_ref_index"])
         assert abs(abs(turns[j]) - (180.0 - float(pair["view_angle_between_axes_deg"]))) < 2.5, (j, turns[j])
@@ -418,8 +420,11 @@ def test_the_map_views_a_bend_from_its_other_end_as_the_true_camera_does(scene, 
         other_end = similarity(scores.query, GridStack.of([rear.layout_grid(j, "opposite")]), weights, 1, 25)[0]
         as_seen = similarity(scores.query, GridStack.of([rear.layout_grid(j)]), weights, 1, 25)[0]
         gains.append(other_end - as_seen)
+        bent.append(180.0 - float(pair["view_angle_between_axes_deg"]) >= 9.0)
     assert turns[12] > 12.0  # the bend at the start: 15 degrees by the ground truth
-    assert min(gains) > -0.005 and np.mean(gains) > 0.01, np.round(gains, 3)
+    gains = np.array(gains)
+    assert 4 <= sum(bent) < len(bent)
+    assert gains[bent].min() > 0.0 and np.mean(gains) > 0.01 and gains.min() > -0.01, np.round(gains, 3)
 
 
 def test_a_map_built_before_the_other_ends_were_stored_matches_as_before_and_says_to_rebuild(scene, maps, mosaic,
@@ -490,8 +495,10 @@ def test_plain_folders_with_a_camera_file_find_the_opposite_views_from_their_fra
     assert queries.geometry is not None and queries.camera is None and queries.positions is None
     (truth,) = from_positions(open_traverse(scene / "front", options=LOOK_AT).positions,
                               open_traverse(scene / "rear", options=LOOK_AT).positions, 7.5)
-    for sequence, expected in ((False, 28), (True, 25)):
+    for sequence, expected in ((False, 27), (True, 31)):
         estimates = _run(refmap, queries, mosaic, sequence=sequence)
-        assert [e.heading for e in estimates[1:]].count("opposite") == 39  # the first frame: its own vote alone
+        # The first three frames are decided on a vote or three, none sure (0.53 to 0.58 the wrong way).
+        headings = [e.heading for e in estimates]
+        assert headings[3:].count("opposite") == 37 and max(e.heading_confidence for e in estimates[:3]) < 0.6
         right = truth.is_correct(np.array([e.match_index for e in estimates]))
         assert (int(right[truth.has_match].sum()), int(truth.has_match.sum())) == (expected, 34)

@@ -22,7 +22,7 @@ from ..describe.thumbnail import ThumbnailDescriber
 from ..errors import InputError, MapError, StateError
 from ..frame import HEADINGS, Camera, Frame, Heading
 from ..images import check_frame
-from ..layout.classes import LayoutClasses
+from ..layout.classes import CHANNELS, LayoutClasses
 from ..layout.describer import FramePlacer, LiveLayout
 from ..layout.grid import Gathering, LayoutGrid
 from ..maps.refmap import ReferenceMap
@@ -242,8 +242,9 @@ class PlaceMatcher:
         self.layout_config = dataclasses.replace(cfg, **grid)
         self._placer = FramePlacer(classes, self.layout_config, self.config.motion)  # type: ignore[arg-type]
         self._live = LiveLayout(self.layout_config)
-        weights = np.ones(6)
-        weights[4] = cfg.vehicle_weight
+        weights = np.ones(len(CHANNELS))
+        weights[CHANNELS.index("vehicle")] = cfg.vehicle_weight
+        weights[CHANNELS.index("building")] = cfg.building_weight
         self._layout_weights = weights
         self._layout_shifts = int(round(cfg.across_shift / settings.cell))
         if not self.map.stores_other_ends:
