@@ -188,6 +188,7 @@ def _save_descriptions(path: Path, items: list[QueryDescription]) -> None:
         "labels": np.stack([d.labels for d in items]),
         "network": np.array([d.timings.get("network", 0.0) for d in items]),
         "progress": np.array([np.nan if d.progress is None else d.progress for d in items]),
+        "gathered": np.array([np.nan if d.gathered is None else d.gathered for d in items]),
         "keypoints": ev.keypoints, "evidence_labels": ev.labels, "slot_keys": ev.slot_keys,
         "slot_offsets": ev.slot_offsets, "channels": ev.channels, "values": ev.values, "slot_norms": ev.slot_norms,
         "frame_slots": slots, "grid": np.array(ev.grid), "feature_dim": np.array(ev.feature_dim),
@@ -221,8 +222,10 @@ def _load_descriptions(path: Path) -> list[QueryDescription]:
         layout = (unpack(data["layout_values"][i], data["layout_mask"][i], tuple(data["layout_shape"]))
                   if "layout_values" in data else None)
         progress = float(data["progress"][i]) if np.isfinite(data["progress"][i]) else None
+        gathered = float(data["gathered"][i]) if np.isfinite(data["gathered"][i]) else None
         out.append(QueryDescription(data["descriptor"][i], data["appearance"][i], evidence, data["labels"][i],
-                                    {"network": float(data["network"][i]), "descriptor": 0.0}, layout, progress))
+                                    {"network": float(data["network"][i]), "descriptor": 0.0}, layout, progress,
+                                    gathered))
     return out
 
 

@@ -111,6 +111,13 @@ class Gathering:
     _grid: LayoutGrid | None = field(default=None, init=False, repr=False, compare=False)
 
     @property
+    def reach(self) -> float:
+        """Metres from where the camera stands now to the farthest frame gathered (0 for a frame alone)."""
+        if not len(self.poses):
+            return 0.0
+        return float(np.hypot(*(np.asarray(self.poses)[:, :2] - np.asarray(self.current)[:2]).T).max())
+
+    @property
     def gathered(self) -> bool:
         return self._grid is not None
 

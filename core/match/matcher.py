@@ -56,6 +56,8 @@ class QueryDescription:
     is on; a grid as such where it was stored (an evaluation's cache)."""
     progress: float | None = None
     """Metres the stream has advanced along its camera's axis (lostx.core.motion), where its motion is known."""
+    gathered: float | None = None
+    """Metres the frame's layout grid gathered over (:attr:`Gathering.reach`), where it has a layout."""
 
 
 @dataclass
@@ -331,7 +333,8 @@ class PlaceMatcher:
         raw = describer.descriptor(described, self.means(described))
         timings["descriptor"] = (t2 - t1) + (time.perf_counter() - t3)
         return QueryDescription(raw, described.appearance() if appearance else None, described.evidence,
-                                described.labels, timings, layout, progress)
+                                described.labels, timings, layout, progress,
+                                None if layout is None else layout.reach)
 
     def _place(self, frame: Frame, label_map: np.ndarray | None,
                timings: dict[str, float]) -> tuple[Gathering | None, float | None]:
@@ -401,8 +404,9 @@ class PlaceMatcher:
         t0 = time.perf_counter()
         evidence = self.last_evidence = self.map.query_evidence(query.evidence)
         vector = self.normaliser(query.descriptor)
+        votes = query.gathered is None or query.gathered >= self.config.heading.layout_after
         match = self._search_and_verify(vector, evidence, query.labels, {**query.timings}, t0,
-                                        layout=query.layout)
+                                        layout=query.layout, layout_votes=votes)
         match.progress = query.progress
         return match
 
@@ -425,7 +429,8 @@ class PlaceMatcher:
 
     def _search_and_verify(self, vector: np.ndarray, evidence: KeypointEvidence, labels: np.ndarray,
                            timings: dict[str, float], t0: float, removed: slice | None = None,
-                           layout: LayoutGrid | Gathering | None = None) -> FrameMatch:
+                           layout: LayoutGrid | Gathering | None = None, layout_votes: bool = True) -> FrameMatch:
+        """``layout_votes``: whether the layout's heading vote counts beside LoST-X's (its grid gathered far enough)."""
         cfg = self.config.verify
         comparison = self._comparison(layout) if cfg.enabled else None
         distance_of = QueryDistances(self.search, vector)
@@ -469,7 +474,7 @@ class PlaceMatcher:
         vote = heading_vote(result.scores, result.mirror_scores)
         if comparison is not None:
             t2 = time.perf_counter()
-            answers, vote = self._with_layout(answers, comparison, distance_of, result, vote, removed)
+            answers, vote = self._with_layout(answers, comparison, distance_of, result, vote, removed, layout_votes)
             # The comparison's own time (on its thread, beside the search and verification), and what combining the
             # two cues added to the frame's, waiting for it included.
             timings["layout compare"] = comparison.seconds
@@ -514,8 +519,8 @@ class PlaceMatcher:
         return self._layout_comparison(grid)
 
     def _with_layout(self, answers: dict[str, MatchResult], comparison: LayoutComparison, distance_of: QueryDistances,
-                     verified: Verification, lost_vote: float,
-                     removed: slice | None) -> tuple[dict[str, MatchResult], float]:
+                     verified: Verification, lost_vote: float, removed: slice | None,
+                     layout_votes: bool = True) -> tuple[dict[str, MatchResult], float]:
         """Each heading's answer ranked by LoST-X and the layout combined, and the two cues' heading votes."""
         cfg = self.config
         out = {}
@@ -536,6 +541,8 @@ class PlaceMatcher:
                 confidence=margin(candidates, ranked, cfg.verify.uniqueness_exclusion),
                 n_matches=np.array([counts[rows[int(c)]] if int(c) in rows else 0 for c in candidates]),
                 map_scores=combined, layout=layout)
+        if not layout_votes:
+            return out, lost_vote
         weight = cfg.heading.layout_vote
         vote = (lost_vote + weight * layout_vote(comparison)) / (1.0 + weight)
         return out, vote
