@@ -122,8 +122,9 @@ class FrameMatch:
     opposite: MatchResult
     heading_evidence: float = 0.0
     """This frame's vote on the heading, in [-1, 1]: the mean over the candidates scored under both
-    hypotheses of sign(score same - score opposite) (and, with the layout, the mean of that vote and the
-    layout's). Positive favours ``opposite``; 0 is no evidence (nothing verified, or a method that cannot tell)."""
+    hypotheses of sign(score same - score opposite) (and, with the layout, the weighted mean of that vote and the
+    layout's, once the frame's grid has gathered ``heading.layout_after`` metres). Positive favours ``opposite``; 0 is
+    no evidence (nothing verified, or a method that cannot tell)."""
     progress: float | None = None
     """Metres the stream has advanced along its camera's axis at this frame, where its motion is known."""
 
