@@ -98,8 +98,7 @@ def _gathered_share(scores: LayoutScores) -> float:
     source = scores.comparison.source
     if not isinstance(source, Gathering) or not len(source.poses):
         return 1.0
-    reach = float(np.hypot(*(source.poses[:, :2] - source.current[:2]).T).max())
-    return max(0.25, min(1.0, reach / source.config.query_travel))
+    return max(0.25, min(1.0, source.reach / source.config.query_travel))
 
 
 def _observed_share(scores: LayoutScores) -> float:

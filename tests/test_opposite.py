@@ -179,12 +179,10 @@ def test_the_layout_votes_on_the_heading_once_its_grid_has_gathered_the_road(sce
     votes = {}
     for layout_vote in (0.0, Config().heading.layout_vote):
         matcher = PlaceMatcher(maps["rear"], Config(heading=HeadingConfig(layout_vote=layout_vote)), mosaic)
-        described = [matcher.describe(f, compare=True) for f in frames[:1]]
-        matches = [matcher.match_description(described[0])]
-        for frame in frames[1:]:
+        described, votes[layout_vote] = [], []
+        for frame in frames:
             described.append(matcher.describe(frame, compare=True))
-            matches.append(matcher.match_description(described[-1]))
-        votes[layout_vote] = [m.heading_evidence for m in matches]
+            votes[layout_vote].append(matcher.match_description(described[-1]).heading_evidence)
     gathered = np.array([d.gathered for d in described])
     early = gathered < Config().heading.layout_after
     assert gathered[0] == 0.0 and early[:2].all() and not early[-3:].any(), gathered
