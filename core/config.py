@@ -176,7 +176,8 @@ class SequenceConfig:
     radius: int = 0
     """A trajectory takes a frame's lowest cost within this many reference frames of its line."""
     contrast_window: int = 10
-    """References around each one that its cost is normalised against (SeqSLAM's contrast enhancement)."""
+    """References around each one that its cost is normalised against (SeqSLAM's contrast enhancement); near an end
+    of the map, as many nearest that end (lostx.core.match.costs.neighbourhoods)."""
     contrast_distance: float = 60.0
     """Following the distance travelled: the references of this many metres of the map's route (at its median
     frame spacing) are the neighbourhood instead. A layout match spreads over some 20 m of road, whatever the frame

@@ -127,10 +127,10 @@ def test_a_map_too_short_to_calibrate_never_claims_to_be_sure(stretch_map):
     assert Localizer(stretch_map, Config()).calibration.too_short(True, 0.999) is None
 
 
-# Measured: 56 of the 100 answers localized; 77 of the 200, where a trajectory that slowed at a tunnel's mouth
+# Measured: 56 of the 100 answers localized; 76 of the 200, where a trajectory that slowed at a tunnel's mouth
 # (query 46) led by as much as a right one while two frames behind its confirmed track, and was localized before
 # a localized answer had to agree with the track within a frame.
-@pytest.mark.parametrize("start, length, localized_count", [(993, 100, 56), (3376, 200, 77)])
+@pytest.mark.parametrize("start, length, localized_count", [(993, 100, 56), (3376, 200, 76)])
 def test_a_short_map_is_localized_and_right(nordland, tmp_path, start, length, localized_count):
     """A map of a stretch of summer frames, calibrated on itself alone; its winter frames as queries."""
     frames = range(start, start + length)

@@ -10,11 +10,14 @@ from lostx.core.match.scores import MapScores
 
 
 def contrast_by_hand(scores: np.ndarray, window: int) -> np.ndarray:
-    """SeqSLAM's enhancement over the whole map, one reference at a time."""
-    half = window // 2
-    out = np.zeros(len(scores))
-    for r in range(len(scores)):
-        near = scores[max(0, r - half) : r + half + 1]
+    """SeqSLAM's enhancement over the whole map, one reference at a time: over the window + 1 references centred on
+    each, or the window + 1 nearest the map's end."""
+    half, n = window // 2, len(scores)
+    size = min(2 * half + 1, n)
+    out = np.zeros(n)
+    for r in range(n):
+        first = min(max(0, r - half), n - size)
+        near = scores[first : first + size]
         std = np.std(near, ddof=1) if len(near) > 1 else 0.0
         out[r] = (scores[r] - near.mean()) / std if std > 0 else 0.0
     return out
@@ -23,6 +26,23 @@ def contrast_by_hand(scores: np.ndarray, window: int) -> np.ndarray:
 def test_contrast_normalisation_is_the_one_by_hand(rng):
     scores = rng.normal(30.0, 5.0, size=200)
     np.testing.assert_allclose(contrast_normalise(scores, 10), contrast_by_hand(scores, 10), rtol=1e-5, atol=1e-5)
+
+
+def test_a_valley_at_the_end_of_the_map_stands_out_as_far_as_in_its_middle():
+    """A true match's valley spans several map frames; at the map's end its neighbourhood still holds the window + 1
+    references (not the half of them on the map's side, mostly the valley itself), so that a vehicle coming onto the
+    map there is seen as clearly as anywhere."""
+    n, window = 60, 10
+    valley = np.array([-3.0, -2.5, -1.5, -0.5])
+    middle, end = np.zeros(n), np.zeros(n)
+    middle[30:34] = valley
+    end[0:4] = valley
+    ripple = 0.1 * np.cos(np.arange(n))  # some spread where the scores are flat
+    in_middle, at_end = contrast_normalise(middle + ripple, window), contrast_normalise(end + ripple, window)
+    at_other_end = contrast_normalise((end + ripple)[::-1], window)
+    assert in_middle[30] < -2.0
+    assert at_end[0] == pytest.approx(in_middle[30], abs=0.15)
+    assert at_other_end[-1] == pytest.approx(at_end[0], abs=1e-6)
 
 
 def _single_lookup_hubs(contrast: np.ndarray, prior: float) -> np.ndarray:

@@ -95,7 +95,8 @@ def test_the_road_driven_the_other_way_is_followed_with_a_falling_index(scene, m
 def test_the_road_driven_the_other_way_one_lane_over_is_still_followed(scene, maps, mosaic, monkeypatch, metres):
     """A car driving the mapped road the other way drives another lane. Each query's grid gathered as by a camera
     3.5 m to its right (where traffic keeps right) or left, the comparison's sideways shifts still find its
-    stretches: measured, 29 of 32 right with the sequence either side (22 and 17 when it searched 2 m sideways)."""
+    stretches: measured, 28 of 32 right with the sequence either side (18 and 24 in benchmarks/study_lane.py when it
+    searched 2 m sideways)."""
     from lostx.core.layout.describer import LiveLayout
     from lostx.core.motion.pose import compose
 
@@ -110,14 +111,14 @@ def test_the_road_driven_the_other_way_one_lane_over_is_still_followed(scene, ma
     estimates = _run(maps["front"], queries, mosaic)
     right, matchable = _right(estimates, maps["front"], queries)
     assert int(matchable.sum()) == 32
-    assert int(right[matchable].sum()) == {-3.5: 29, 3.5: 29}[metres]
+    assert int(right[matchable].sum()) == {-3.5: 28, 3.5: 28}[metres]
 
 
 def test_a_heading_found_late_answers_from_a_window_of_its_own_matches(scene, maps, mosaic):
     """The road driven the other way with the declared front camera taken as a vehicle driving the mapped direction
     (``declared_prior`` 0.9): the heading starts wrong and the evidence turns it at frame 16. While it was unsure the
     frames' matches under the other heading filled a window of their own, so the answers after the turn follow them
-    (13 of the 16 frames with a counterpart right; 8 of 16 when the turn starts a fresh window)."""
+    (12 of the 16 frames with a counterpart right; 5 of 16 when the turn starts a fresh window)."""
     traverse = open_traverse(scene / "rear", options=LOOK_AT).reversed()
     queries = list(traverse)
     config = Config(heading=HeadingConfig(declared_prior=0.9))
@@ -126,7 +127,7 @@ def test_a_heading_found_late_answers_from_a_window_of_its_own_matches(scene, ma
     turned = next(k for k, e in enumerate(estimates) if e.heading == "opposite")
     assert turned == 16 and all(e.heading == "opposite" for e in estimates[turned:])
     right, matchable = _right(estimates, maps["front"], traverse)
-    assert (int(right[turned:][matchable[turned:]].sum()), int(matchable[turned:].sum())) == (13, 16)
+    assert (int(right[turned:][matchable[turned:]].sum()), int(matchable[turned:].sum())) == (12, 16)
     # Stopped and restored while unsure (a service restarted), the other heading's window carries over.
     before = Localizer(maps["front"], config, mosaic)
     for frame in queries[:16]:
@@ -154,14 +155,14 @@ def test_a_query_camera_moving_away_from_its_view_finds_the_heading(scene, maps,
     assert ([e.heading for e in estimates].count("opposite"), int(right[matchable].sum())) == expected
 
 
-@pytest.mark.parametrize("switch_cost, expected", [(8.0, (25, 3)), (4.0, (28, 6)), (math.inf, (20, 0))])
+@pytest.mark.parametrize("switch_cost, expected", [(8.0, (26, 4)), (4.0, (28, 6)), (math.inf, (22, 0))])
 def test_a_vehicle_entering_the_map_from_outside_is_followed_once_its_trajectory_leads(scene, maps, mosaic,
                                                                                       switch_cost, expected):
     """A rear camera driving the mapped direction against the front camera's map starts 30 m before the map: its
     first 8 frames have no counterpart and match a look-alike stretch (map frames 16-20). A trajectory entering the
-    map takes over once it leads the look-alike by the switch cost: with the default 8, 25 of 32 right and 3 of the
+    map takes over once it leads the look-alike by the switch cost: with the default 8, 26 of 32 right and 4 of the
     first 10 on the map; with 4, 28 and 6; scored by each trajectory's own mean it waits until the look-alike's
-    frames have left the window (20, 0)."""
+    frames have left the window (22, 0)."""
     queries = open_traverse(scene / "rear", options=LOOK_AT)
     estimates = _run(maps["front"], queries, mosaic, SequenceConfig(switch_cost=switch_cost), declared=False)
     right, matchable = _right(estimates, maps["front"], queries)

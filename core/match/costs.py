@@ -3,8 +3,8 @@
 A frame's single-frame score of map frame r, s(r) (:class:`MapScores`, lower is better), becomes its cost
 in two steps:
 
-1. SeqSLAM's local contrast enhancement over the ``window`` + 1 references centred on r (clipped at the
-   ends of the map)::
+1. SeqSLAM's local contrast enhancement over the ``window`` + 1 references centred on r (near the map's
+   ends, the ``window`` + 1 nearest the end: :func:`neighbourhoods`)::
 
        c(r) = (s(r) - mean_W(r) s) / std_W(r) s        (sample std; 0 where the neighbourhood is flat)
 
@@ -51,18 +51,29 @@ def local_contrast(own: np.ndarray, total: np.ndarray, total_sq: np.ndarray, cou
     return np.where(ok, (own - mean) / np.where(ok, std, 1.0), 0.0)
 
 
+def neighbourhoods(refs: np.ndarray, window: int, n_refs: int) -> tuple[np.ndarray, int]:
+    """W(r) for references ``refs`` of a map of ``n_refs``: the first reference of each and their common size, the
+    ``window`` + 1 references centred on r, or where r is nearer an end of the map than half of them, the ``window``
+    + 1 nearest that end (the whole map where it is shorter). Clipped instead, an end frame's neighbourhood would be
+    half as wide and mostly its own peak (a true match's valley spans several frames): its contrast would be weakest
+    where a vehicle comes onto the map, the one place a trajectory has to out-score a look-alike from its first
+    frames."""
+    half = window // 2
+    size = min(2 * half + 1, n_refs)
+    return np.clip(np.asarray(refs) - half, 0, n_refs - size), size
+
+
 def contrast_normalise(scores: np.ndarray, window: int) -> np.ndarray:
     """SeqSLAM's local contrast enhancement of one frame's scores over the references:
 
-        c(r) = (s(r) - mean_W(r) s) / std_W(r) s,   W(r) = the ``window`` + 1 references centred on r
+        c(r) = (s(r) - mean_W(r) s) / std_W(r) s,   W(r) = the ``window`` + 1 references around r
 
-    (clipped at the ends), from prefix sums. Where the neighbourhood is flat the cost is 0.
+    (:func:`neighbourhoods`), from prefix sums. Where the neighbourhood is flat the cost is 0.
     """
     s = np.asarray(scores, dtype=np.float64)
     n = len(s)
-    half = window // 2
-    lo = np.clip(np.arange(n) - half, 0, n)
-    hi = np.clip(np.arange(n) + half + 1, 0, n)
+    lo, size = neighbourhoods(np.arange(n), window, n)
+    hi = lo + size
     c1 = np.concatenate([[0.0], np.cumsum(s)])
     c2 = np.concatenate([[0.0], np.cumsum(s * s)])
     return local_contrast(s, c1[hi] - c1[lo], c2[hi] - c2[lo], hi - lo,
@@ -246,7 +257,7 @@ class LookedUpCosts:
 
     def __init__(self, n_refs: int, length: int, contrast_window: int, hub_prior: float) -> None:
         self.n_refs, self.length = int(n_refs), int(length)
-        self.half = int(contrast_window) // 2
+        self.window = int(contrast_window)
         self.hub_prior = float(hub_prior)
         self.computed = 0
         """Scores computed so far (each a descriptor distance): what the look-ups cost."""
@@ -308,16 +319,14 @@ class LookedUpCosts:
 
     def _compute(self, rows: np.ndarray, refs: np.ndarray, slots: np.ndarray, column: np.ndarray) -> None:
         """Costs of the distinct cells (rows, refs), ordered by row, held at (slots, column)."""
-        offsets = np.arange(-self.half, self.half + 1)
-        around = refs[:, None] + offsets[None, :]
-        inside = (around >= 0) & (around < self.n_refs)
-        around = np.clip(around, 0, self.n_refs - 1)
+        first, size = neighbourhoods(refs, self.window, self.n_refs)
+        around = first[:, None] + np.arange(size)[None, :]
         around_rows = np.broadcast_to(rows[:, None], around.shape)
         around_slots = self.cells.slots(around_rows.ravel(), around.ravel()).reshape(around.shape)
         around_column = around % WindowCells.BLOCK
-        self._ensure_scores(around_rows[inside], around[inside], around_slots[inside], around_column[inside])
-        s = np.where(inside, self.cells.score[around_slots, around_column], 0.0)
-        valid = inside & np.isfinite(s)
+        self._ensure_scores(around_rows.ravel(), around.ravel(), around_slots.ravel(), around_column.ravel())
+        s = self.cells.score[around_slots, around_column]
+        valid = np.isfinite(s)
         s = np.where(valid, s, 0.0)
         own = self.cells.score[slots, column]
         contrast = local_contrast(own, s.sum(axis=1), (s * s).sum(axis=1), valid.sum(axis=1), np.abs(own))
