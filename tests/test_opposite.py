@@ -67,7 +67,7 @@ def test_the_papers_setup_finds_the_opposite_heading_without_being_told(scene, m
     queries = open_traverse(scene / "front", options=LOOK_AT)
     estimates = _run(maps["rear"], queries, mosaic, sequence=False, declared=False)
     headings = [e.heading for e in estimates]
-    # The first frame's heading is its own vote alone (0.53 the wrong way, not sure); every later one is right.
+    # The first frame's heading rests on LoST-X's vote alone (0.53 the right way, not sure); every later one is right.
     assert headings[1:].count("opposite") == 39 and estimates[0].heading_confidence < 0.9
     right, matchable = _right(estimates, maps["rear"], queries)
     assert (int(right[matchable].sum()), int(matchable.sum())) == (28, 34)  # measured, single frame, with the layout
