@@ -157,6 +157,12 @@ FAMILIES: dict[str, dict[str, Config]] = {
         "vehicles weighted 1": variant(layout=dict(vehicle_weight=1.0)),
         "vehicles left out": variant(layout=dict(vehicle_weight=0.0)),
     },
+    "smoothing": {f"smoothed {b:g} m{' (default)' if b == Config().layout.blur else ''}":
+                  variant(layout=dict(blur=b)) for b in (1.0, 2.0, 3.0, 4.0)},
+    "frames": {f"at most {k} frames a grid{' (default)' if k == Config().layout.max_frames else ''}":
+               variant(layout=dict(max_frames=k)) for k in (6, 12, 20)},
+    "overlap": {f"at least {k} cells in common{' (default)' if k == Config().layout.min_cells else ''}":
+                variant(layout=dict(min_cells=k)) for k in (12, 25, 50)},
     "buildings": {f"buildings weighted {w:g}{' (default)' if w == Config().layout.building_weight else ''}"
                   if w else "buildings left out": variant(layout=dict(building_weight=w))
                   for w in (1.0, 0.75, 0.5, 0.25, 0.0)},
