@@ -37,6 +37,7 @@ from lostx.core.match.combined import CombinedScores, LayoutScores
 from lostx.core.match.matcher import PlaceMatcher
 from lostx.core.match.scores import MapScores
 from lostx.core.paths import data_dir
+from lostx.evaluation.significance import paired_comparison
 from lostx.replay.dataset import SourceOptions, open_traverse
 from lostx.replay.folder import Traverse
 
@@ -130,7 +131,8 @@ FAMILIES: dict[str, dict[str, Config]] = {
         "times the metres gathered, from a quarter": GATHERED,
         "times the cells observed, squared": OBSERVED,
     },
-    "window": {f"distance window {d:g} m": variant(sequence=dict(distance_window=d)) for d in (30.0, 45.0, 60.0, 1000.0)},
+    "window": {f"distance window {d:g} m{' (default)' if d == Config().sequence.distance_window else ''}":
+               variant(sequence=dict(distance_window=d)) for d in (30.0, 45.0, 60.0, 1000.0)},
     "switch": {f"switch cost {j:g}{' (default)' if j == Config().sequence.switch_cost else ''}":
                variant(sequence=dict(switch_cost=j)) for j in (2.0, 4.0, 6.0, 8.0, float("inf"))},
     "follow": {
@@ -215,14 +217,15 @@ class Study:
         for setup, pairing in SETUPS.items():
             counts = self.counts(config, pairing, every)
             out[setup] = {**{mode: [c["right"], c["counted"]] for mode, c in counts.items()},
-                          **{f"heading_{mode}": [c["opposite"], c["frames"]] for mode, c in counts.items()}}
+                          **{f"heading_{mode}": [c["opposite"], c["frames"]] for mode, c in counts.items()},
+                          **{f"answers_{mode}": c["answers"] for mode, c in counts.items()}}
         return out
 
     def counts(self, config: Config, pairing: tuple[str, str, bool], every: int = 1) -> dict[str, dict[str, int]]:
-        """:func:`scored`'s counts per mode over the runs of ``pairing`` at every ``every``-th frame, summed, with the
-        frames played (``frames``)."""
+        """:func:`scored`'s counts per mode over the runs of ``pairing`` at every ``every``-th frame, summed (the
+        answers joined), with the frames played (``frames``)."""
         total = {mode: {"counted": 0, "right": 0, "opposite": 0, "sure": 0, "entering": 0, "entering right": 0,
-                        "frames": 0} for mode in MODES}
+                        "frames": 0, "answers": []} for mode in MODES}
         for run in runs(pairing, every):
             for mode, c in scored(self.refmap(pairing[0], config, run), run.frames, run.looks, run.map_looks, config,
                                   self.backbone).items():
@@ -269,7 +272,8 @@ def scored(refmap: ReferenceMap, frames: list, looks: np.ndarray, map_looks: np.
     points ``map_looks``), single frame and with the sequence filter: per mode the queries with a counterpart within
     ``TOLERANCE`` (counted), those answered within it (right), the frames whose heading is opposite, and opposite
     and sure (at least ``heading.min_confidence``), and where the frames start off the map, the first ``ENTERED``
-    queries with a counterpart (entering) and of them those right (entering right)."""
+    queries with a counterpart (entering) and of them those right (entering right); and whether each counted query
+    was answered right, in order (answers: to compare two variants query by query)."""
     matcher = PlaceMatcher(refmap, config, backbone)
     matches = [matcher.match_description(matcher.describe(f)) for f in frames]
     distances = [np.hypot(*(map_looks - look).T) for look in looks]
@@ -279,7 +283,8 @@ def scored(refmap: ReferenceMap, frames: list, looks: np.ndarray, map_looks: np.
         run_config = dataclasses.replace(config, sequence=dataclasses.replace(config.sequence,
                                                                               enabled=mode == "sequence"))
         localizer = Localizer(refmap, run_config, backbone)
-        counts = {"counted": 0, "right": 0, "opposite": 0, "sure": 0, "entering": 0, "entering right": 0}
+        counts = {"counted": 0, "right": 0, "opposite": 0, "sure": 0, "entering": 0, "entering right": 0,
+                  "answers": []}
         for frame, match, distance in zip(frames, matches, distances):
             estimate = localizer.update(frame, match)
             opposite = estimate.heading == "opposite"
@@ -292,6 +297,7 @@ def scored(refmap: ReferenceMap, frames: list, looks: np.ndarray, map_looks: np.
                     counts["entering right"] += right
                 counts["counted"] += 1
                 counts["right"] += right
+                counts["answers"].append(right)
         out[mode] = counts
     return out
 
@@ -309,6 +315,15 @@ def chosen(results: dict[str, dict], on: str, rates: tuple[str, ...] = ("2 Hz",)
     return max(results, key=lambda name: (figure(name, "sequence"), figure(name, "single")))
 
 
+def against(answers: list[bool], default: list[bool]) -> str:
+    """A variant's answers against the default's, query by query and in stretches of neighbouring queries, each with
+    the exact McNemar test's p: ``+7 -0 (p 0.016), stretches +1 -0 (p 1)``."""
+    queries = paired_comparison(np.array(answers), np.array(default))
+    runs = paired_comparison(np.array(answers), np.array(default), stretches=True)
+    return (f"+{queries.only_first} -{queries.only_second} (p {queries.p_value:.2g}), "
+            f"stretches +{runs.only_first} -{runs.only_second} (p {runs.p_value:.2g})")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--families", default=",".join(FAMILIES), help="comma-separated: " + ", ".join(FAMILIES))
@@ -321,15 +336,21 @@ def main() -> None:
         for family in args.families.split(","):
             results = {name: {rate: study.run(config, every) for rate, every in RATES.items()}
                        for name, config in FAMILIES[family].items()}
+            default = next((name for name in results if "(default" in name), None)
             rows = []
             for name, by_rate in results.items():
                 r, half = by_rate["2 Hz"], by_rate["1 Hz"]
                 rows.append([name, *(f"{r[s][m][0]}/{r[s][m][1]}" for s in SETUPS for m in MODES),
                              f"{r['S1']['heading_sequence'][0]}/{r['S2']['heading_sequence'][0]}",
-                             *(f"{half[s][m][0]}/{half[s][m][1]}" for s in SETUPS for m in MODES)])
-            print_table(f"{family}: Recall@1 at 7.5 m, 2 Hz (heading opposite in frames of 40), and 1 Hz",
+                             *(f"{half[s][m][0]}/{half[s][m][1]}" for s in SETUPS for m in MODES),
+                             *(against(r[s]["answers_sequence"], results[default]["2 Hz"][s]["answers_sequence"])
+                               if default is not None and name != default else "" for s in SETUPS)])
+            print_table(f"{family}: Recall@1 at 7.5 m, 2 Hz (heading opposite in frames of 40), and 1 Hz; at 2 Hz the "
+                        f"sequence's queries right only with the variant / only with the default, and the stretches "
+                        f"of neighbouring queries they make (exact McNemar p of each)",
                         ["variant", "S1 single", "S1 sequence", "S2 single", "S2 sequence", "heading S1/S2",
-                         "1 Hz S1 single", "S1 sequence", "S2 single", "S2 sequence"], rows)
+                         "1 Hz S1 single", "S1 sequence", "S2 single", "S2 sequence", "S1 against the default",
+                         "S2 against the default"], rows)
             report[family] = {"results": results}
             for rates in (("2 Hz",), tuple(RATES)):
                 on_s1, on_s2 = chosen(results, "S1", rates), chosen(results, "S2", rates)

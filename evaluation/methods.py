@@ -56,16 +56,17 @@ from .groundtruth import GroundTruth
 from .metrics import (
     Evaluation, OperatingPoint, ReliabilityBin, evaluate_tolerances, operating_point, reliability,
 )
+from .significance import PairedComparison, paired_comparison
 
 DEFAULT_TOLERANCES = {"frames": (0.0, 1.0, 2.0), "m": (5.0, 10.0, 20.0, 40.0, 80.0)}
 NETWORK_METHODS = ("lostx", "lostx-nolayout", "layout", "lost", "appearance")
 HEADING_METHODS = ("lostx", "lostx-nolayout", "layout", "thumbnail")
+"""The methods that can tell the headings apart (a verification mirrored or not, a flipped thumbnail);
+pooled descriptors (LoST alone, GeM) are the same both ways."""
 LAYOUT_METHODS = ("lostx-nolayout", "layout")
 """The methods that differ from ``lostx`` only where the frames have a layout."""
 LAYOUT_ALONE = 100.0
 """The layout's weight beside LoST-X for the ``layout`` method: LoST-X then only breaks ties."""
-"""The methods that can tell the headings apart (a verification mirrored or not, a flipped thumbnail);
-pooled descriptors (LoST alone, GeM) are the same both ways."""
 
 
 @dataclass
@@ -291,6 +292,26 @@ def runs_of(method: str, matches: list[FrameMatch], refmap: ReferenceMap, query:
                        np.array([e.confidence for e in estimates]), _candidate_lists(lists),
                        headings=np.array([e.heading for e in estimates]) if method in HEADING_METHODS else None,
                        localized=np.array([e.state == "localized" for e in estimates]), too_short=too_short))
+    return out
+
+
+def paired_comparisons(runs: Sequence[Run], truths: Sequence[GroundTruth]
+                       ) -> list[tuple[Run, Run, GroundTruth, PairedComparison, PairedComparison]]:
+    """Recall@1's answers compared query by query and in stretches of neighbouring queries, at every tolerance: each
+    run against the first method's run in the same mode, and each sequence run against its method's single frame."""
+    pairs = []
+    for run in runs:
+        first = next((r for r in runs if r.mode == run.mode), None)
+        if first is not None and first is not run:
+            pairs.append((run, first))
+        single = next((r for r in runs if r.method == run.method and r.mode == "single"), None)
+        if run.mode == "sequence" and single is not None:
+            pairs.append((run, single))
+    out = []
+    for truth in truths:
+        for a, b in pairs:
+            right = truth.is_correct(a.predictions), truth.is_correct(b.predictions)
+            out.append((a, b, truth, paired_comparison(*right), paired_comparison(*right, stretches=True)))
     return out
 
 

@@ -26,6 +26,7 @@ from matplotlib.ticker import MaxNLocator
 from lostx.core.errors import InputError
 from .catalogue import MODES
 from .metrics import Evaluation, PRCurve, max_f1_by_tolerance
+from .significance import PairedComparison
 
 Mode = Literal["single", "sequence"]
 REQUIRED_KEYS = (
@@ -105,6 +106,21 @@ def _percent(key: str) -> Callable[[dict[str, Any]], str]:
     return lambda entry: _fmt(entry[key], True)
 
 
+def _recalled(entry: dict[str, Any]) -> str:
+    """Recall@1 as a count of its denominator: ``27/34``."""
+    if not entry.get("recall_denominator"):
+        return "n/a"
+    return f"{entry['n_recalled_at_1']}/{entry['recall_denominator']}"
+
+
+def _interval(entry: dict[str, Any]) -> str:
+    """Recall@1's 95 % interval in percent: ``63-90``."""
+    low, high = entry.get("recall_at_1_low", float("nan")), entry.get("recall_at_1_high", float("nan"))
+    if not (math.isfinite(float(low)) and math.isfinite(float(high))):
+        return "n/a"
+    return f"{100 * low:.0f}-{100 * high:.0f}"
+
+
 TABLE_COLUMNS: list[tuple[str, Callable[[dict[str, Any]], str]]] = [
     ("method", lambda e: str(e["method"])),
     ("mode", lambda e: str(e["mode"])),
@@ -116,6 +132,8 @@ TABLE_COLUMNS: list[tuple[str, Callable[[dict[str, Any]], str]]] = [
     ("max F1 %", _percent("max_f1")),
     ("AUC-PR %", _percent("auc_pr")),
     ("R@1 %", _percent("recall_at_1")),
+    ("R@1 right", _recalled),
+    ("R@1 95 % interval", _interval),
     ("R@5 %", _percent("recall_at_5")),
     ("R@10 %", _percent("recall_at_10")),
     ("heading right %", lambda e: _fmt(e.get("heading_right", float("nan")), True)),
@@ -130,6 +148,17 @@ ORACLE_AND_DEPLOYED = (
     "with the threshold it fixed beforehand (calibrated on the map): their precision and recall are what a "
     "deployed system gets.\n\n"
 )
+INTERVAL_NOTE = (
+    "*R@1 right*: the queries recalled at the first answer, of those counted. *R@1 95 % interval*: the Wilson score "
+    "interval of that share: on few queries a recall is known only this well.\n\n"
+)
+PAIRED_NOTE = (
+    "Two sets of answers to the same queries: the queries only each gets right, and the exact McNemar test's "
+    "p-value (the chance of a split at least this uneven were both equally good). A split of a few queries is "
+    "noise. Neighbouring answers are not independent (a sequence filter's share its window; a layout's grids share "
+    "their frames), so the split is also counted in stretches, each run of neighbouring queries only one gets right "
+    "counted once: the p-value of the queries overstates the evidence, that of the stretches understates it.\n\n"
+)
 RELIABILITY_NOTE = (
     "Answers binned by their confidence, and the share of each bin that is right (at the tightest tolerance). "
     "A confidence that means what it says has a precision at least as high as the bin's confidences.\n\n"
@@ -142,6 +171,20 @@ def markdown_table(entries: Iterable[dict[str, Any]]) -> str:
     lines = ["| " + " | ".join(header) + " |", "|" + "|".join(["---"] * 2 + ["---:"] * (len(header) - 2)) + "|"]
     for entry in entries:
         lines.append("| " + " | ".join(cell(entry) for _, cell in TABLE_COLUMNS) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def paired_table(rows: Sequence[tuple[str, str, str, PairedComparison, PairedComparison]]) -> str:
+    """``(first, second, tolerance, by query, by stretch)`` per pair of answers to the same queries: the queries only
+    each gets right and the exact McNemar test's p-value, and the same counting each stretch of neighbouring queries
+    once."""
+    if not rows:
+        return ""
+    lines = ["| answers | against | tolerance | right only here | right only there | p | in stretches: here, there, p |",
+             "|---|---|---|---:|---:|---:|---:|"]
+    for first, second, tolerance, c, runs in rows:
+        lines.append(f"| {first} | {second} | {tolerance} | {c.only_first} | {c.only_second} | {c.p_value:.2g} | "
+                     f"{runs.only_first}, {runs.only_second}, {runs.p_value:.2g} |")
     return "\n".join(lines) + "\n"
 
 
@@ -160,16 +203,20 @@ def reliability_table(rows: Sequence[tuple[str, Sequence[Any]]]) -> str:
 
 def write_markdown(path: str | Path, entries: Iterable[dict[str, Any]], title: str | None = None,
                    settings: dict[str, Any] | None = None, figures: Sequence[tuple[str, str | Path]] = (),
-                   reliability: str = "") -> Path:
-    """``report.md``: the title, the settings that produced the numbers, the table, the reliability
-    of the confidence, and the figures (``(caption, file)``, linked relative to the report)."""
+                   reliability: str = "", comparisons: str = "") -> Path:
+    """``report.md``: the title, the settings that produced the numbers, the table, the answers compared query by
+    query (:func:`paired_table`), the reliability of the confidence, and the figures (``(caption, file)``, linked
+    relative to the report)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     parts = [f"# {title}\n"] if title else []
     if settings:
         rows = "".join(f"| {key} | {value} |\n" for key, value in settings.items())
         parts.append(f"## Settings\n\n| setting | value |\n|---|---|\n{rows}")
-    parts.append(("## Results\n\n" if settings or figures else "") + ORACLE_AND_DEPLOYED + markdown_table(entries))
+    parts.append(("## Results\n\n" if settings or figures else "") + ORACLE_AND_DEPLOYED + INTERVAL_NOTE
+                 + markdown_table(entries))
+    if comparisons:
+        parts.append("## Differences, query by query\n\n" + PAIRED_NOTE + comparisons)
     if reliability:
         parts.append("## Reliability of the confidence\n\n" + RELIABILITY_NOTE + reliability)
     if figures:

@@ -53,6 +53,23 @@ def test_figures_match_the_single_frame_and_sequence_runs(report):
     assert find(rows, "thumbnail", "single", 0.0)["recall_at_1"] == pytest.approx(0.2)
 
 
+def test_recall_comes_with_its_interval_and_the_methods_are_compared_query_by_query(report):
+    out = report[0]
+    row = find(entries(out), "lostx", "single", 0.0)
+    # 6 of 10 exact: Wilson's 95 % interval 31-83 %.
+    assert (row["recall_at_1_low"], row["recall_at_1_high"]) == pytest.approx((0.312674, 0.831820), abs=1e-5)
+    text = (out / "report.md").read_text()
+    section = text[text.index("## Differences, query by query"):]
+    rows = {tuple(c.strip() for c in line.strip("|").split("|")[:3]): line
+            for line in section.splitlines() if line.startswith("| ")}
+    # Each method against LoST-X in the same mode, and each sequence against its single frame: the splits
+    # add up to the recalls' difference (LoST 2, LoST-X 6 of 10 single; the sequence 7).
+    lost = rows[("LoST, single", "LoST-X, single", "0 frames")].split("|")
+    assert int(lost[4]) - int(lost[5]) == 2 - 6
+    seq = rows[("LoST-X, sequence", "LoST-X, single", "0 frames")].split("|")
+    assert int(seq[4]) - int(seq[5]) == 7 - 6
+
+
 def test_plots_are_written_and_shown_in_the_report(report, robotcar):
     out = report[0]
     text = (out / "report.md").read_text()

@@ -175,3 +175,60 @@ def test_bad_shapes_and_indices_are_clear_errors():
         evaluate(np.array([0, 1, 3]), np.array([0.1, 0.2, 0.3]), gt)
     with pytest.raises(InputError, match="recall_over"):
         evaluate(np.array([0, 1, 2]), np.array([0.1, 0.2, 0.3]), gt, recall_over="some")  # type: ignore[arg-type]
+
+
+def test_recall_interval_is_wilsons_score_interval():
+    from lostx.evaluation.significance import recall_interval
+    # 27 of 34, z = 1.959964 (z^2 = 3.841459): centre (27 + 1.920729) / 37.841459 = 0.764258,
+    # half 1.959964 * sqrt(27 * 7 / 34 + 0.960365) / 37.841459 = 0.132242.
+    assert recall_interval(27, 34) == pytest.approx((0.632016, 0.896500), abs=1e-5)
+    # None of 10: from 0 to z^2 / (n + z^2) = 3.841459 / 13.841459; all of 10 mirrors it.
+    assert recall_interval(0, 10) == pytest.approx((0.0, 0.277533), abs=1e-5)
+    assert recall_interval(10, 10) == pytest.approx((1 - 0.277533, 1.0), abs=1e-5)
+    # More queries, the same share: a narrower interval around it.
+    low, high = recall_interval(270, 340)
+    assert 0.632 < low < 27 / 34 < high < 0.8965
+    assert all(math.isnan(v) for v in recall_interval(0, 0))
+    with pytest.raises(InputError, match="0 <= k <= n, got 5 of 4"):
+        recall_interval(5, 4)
+
+
+def test_sign_test_is_exact_mcnemar():
+    from lostx.evaluation.significance import paired_comparison, sign_test
+    assert sign_test(0, 5) == pytest.approx(2 / 32)  # both tails of 5 coin tosses all one way
+    assert sign_test(1, 9) == pytest.approx(2 * (1 + 10) / 1024)  # C(10, 0) + C(10, 1) of 2^10, both tails
+    assert sign_test(9, 1) == sign_test(1, 9)
+    assert sign_test(2, 2) == 1.0 and sign_test(0, 0) == 1.0
+    first = np.array([True, True, True, False, False, True])
+    second = np.array([True, False, False, False, True, True])
+    c = paired_comparison(first, second)
+    assert (c.n, c.only_first, c.only_second, c.difference) == (6, 2, 1, 1)
+    assert c.p_value == pytest.approx(1.0)  # 2 * (1 + 3) / 8, capped at 1
+    with pytest.raises(InputError, match="two answers per query"):
+        paired_comparison(first, second[:5])
+
+
+def test_paired_comparison_in_stretches_counts_each_run_once():
+    from lostx.evaluation.significance import paired_comparison
+    # Seven neighbouring answers turned right together, as a sequence filter's do, and one more apart: 8 queries,
+    # 2 stretches against none (p = 0.5, where the 8 queries alone would give 2 / 2^8).
+    first = np.array([True, True] + [True] * 7 + [True, True, True, False, True])
+    second = np.array([True, True] + [False] * 7 + [True, True, True, False, False])
+    assert paired_comparison(first, second).only_first == 8
+    c = paired_comparison(first, second, stretches=True)
+    assert (c.only_first, c.only_second, c.p_value) == (2, 0, 0.5)
+    # Runs of each kind counted apart, a run at either end included.
+    a = np.array([True, False, False, True, True, False])
+    b = np.array([False, True, True, False, False, True])
+    c = paired_comparison(a, b, stretches=True)
+    assert (c.only_first, c.only_second) == (2, 2)
+
+
+def test_summary_gives_recall_at_1_with_its_interval():
+    gt, pred, score = five_queries()
+    summary = evaluate(pred, score, gt).summary()
+    # 3 of the 4 queries with a true reference recalled at 1: centre (3 + 1.920729) / 7.841459 = 0.627528,
+    # half 1.959964 * sqrt(3 * 1 / 4 + 0.960365) / 7.841459 = 0.326886.
+    assert summary["recall_at_1"] == pytest.approx(0.75)
+    assert (summary["n_recalled_at_1"], summary["recall_denominator"]) == (3, 4)
+    assert (summary["recall_at_1_low"], summary["recall_at_1_high"]) == pytest.approx((0.300642, 0.954413), abs=1e-5)

@@ -136,3 +136,29 @@ def test_report_md_records_the_settings_and_shows_the_figures(tmp_path):
     assert text.index("## Settings") < text.index("## Results") < text.index("## Figures")
     assert "![precision-recall at a tolerance of 0 frames](pr_0frames.png)" in text
     assert "![max F1](max_f1_vs_tolerance.png)" in text  # linked relative to the report
+
+
+def test_table_gives_recall_at_1_as_a_count_with_its_interval():
+    evals = sample_evaluations()
+    lines = report.markdown_table([report.report_entry("thumbnail", "single", e) for e in evals]).strip().splitlines()
+    header = [cell.strip() for cell in lines[0].strip("|").split("|")]
+    row = [cell.strip() for cell in lines[2].strip("|").split("|")]
+    # At 0 frames queries 0, 2 and 4 of 6 are right: 3/6, Wilson's interval 19-81 %.
+    assert row[header.index("R@1 right")] == "3/6"
+    assert row[header.index("R@1 95 % interval")] == "19-81"
+
+
+def test_report_md_compares_answers_query_by_query(tmp_path):
+    from lostx.evaluation.significance import paired_comparison
+    better = np.array([True] * 9 + [False])
+    worse = np.array([True] + [False] * 9)
+    table = report.paired_table([("lostx, sequence", "lostx, single", "7.5 m", paired_comparison(better, worse),
+                                  paired_comparison(better, worse, stretches=True))])
+    # 8 queries one way (2 / 2^8), all in one stretch (2 / 2).
+    assert "| lostx, sequence | lostx, single | 7.5 m | 8 | 0 | 0.0078 | 1, 0, 1 |" in table
+    path = report.write_markdown(tmp_path / "report.md", [report.report_entry("thumbnail", "single", e)
+                                                          for e in sample_evaluations()], "t", settings={"backbone": "mosaic"},
+                                 comparisons=table)
+    text = path.read_text()
+    assert text.index("## Results") < text.index("## Differences, query by query") and table in text
+    assert "## Differences" not in report.write_markdown(tmp_path / "plain.md", [], "t", {"backbone": "mosaic"}).read_text()

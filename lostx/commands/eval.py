@@ -62,10 +62,11 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from lostx.core.outputs import check_output_folder
     from lostx.evaluation.datasets import open_pair
-    from lostx.evaluation.methods import evaluate_pair
+    from lostx.evaluation.methods import evaluate_pair, paired_comparisons
     from lostx.evaluation.report import (
         markdown_table,
         method_styles,
+        paired_table,
         plot_max_f1_vs_tolerance,
         plot_pr_curves,
         quantity,
@@ -111,8 +112,10 @@ def run(args: argparse.Namespace) -> int:
     figures.append((caption, "max_f1_vs_tolerance.png"))
     write_report_json(args.out / "report.json", entries)
     reliability = reliability_table([(r.label, r.reliability[0]) for r in runs])
+    comparisons = paired_table([(a.label, b.label, quantity(truth.tolerance, unit), c, stretches)
+                                for a, b, truth, c, stretches in paired_comparisons(runs, truths)])
     write_markdown(args.out / "report.md", entries, title, report_settings(args, config, pair, truths), figures,
-                   reliability)
+                   reliability, comparisons)
     print(markdown_table(entries))
     for note in too_short_notes(runs):
         print(note)
