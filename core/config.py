@@ -491,7 +491,8 @@ LIMITS: dict[str, dict[str, Bounds]] = {
     },
     "motion": {"visual_width": Bounds(64, 8192)},
     "heading": {"declared_prior": Bounds(0.5, 1), "vote_reliability": Bounds(0.5, 0.999),
-                "layout_vote": Bounds(0, 1), "layout_after": _AT_LEAST_0, "switch": Bounds(0, 0.5), "min_confidence": Bounds(0.5, 1)},
+                "layout_vote": Bounds(0, 1), "layout_after": _AT_LEAST_0, "switch": Bounds(0, 0.5),
+                "min_confidence": Bounds(0.5, 1)},
     "decision": {"min_confidence": Bounds(0, 1), "calibration_frames": _AT_LEAST_1},
     "tracker": {
         "gate_sigma": _ABOVE_0, "agree_within": _AT_LEAST_0, "relocalise_after": _AT_LEAST_1,

@@ -100,7 +100,7 @@ class Evaluation:
         for n, value in sorted(self.recall_at_n.items()):
             out[f"recall_at_{n}"] = value
         out["n_recalled_at_1"] = self.recalled_at_1
-        out["recall_denominator"] = self.denominator
+        out["recall_denominator"] = self.curve.n_positives
         out["recall_at_1_low"], out["recall_at_1_high"] = self.recall_at_1_interval()
         out.update(
             n_queries=self.n_queries,
@@ -112,21 +112,17 @@ class Evaluation:
         return out
 
     @property
-    def denominator(self) -> int:
-        """The queries a recall is a share of (:func:`recall_denominator`)."""
-        return self.n_matchable if self.recall_over == "matchable" else self.n_queries
-
-    @property
     def recalled_at_1(self) -> int:
         """The queries recalled at the first answer (Recall@1 times its denominator; 0 where nothing is recalled
         over)."""
         recall = self.recall_at_n.get(1, float("nan"))
-        return round(recall * self.denominator) if self.denominator and np.isfinite(recall) else 0
+        n = self.curve.n_positives
+        return round(recall * n) if n and np.isfinite(recall) else 0
 
     def recall_at_1_interval(self, level: float = 0.95) -> tuple[float, float]:
         """Recall@1's Wilson score interval (:func:`lostx.evaluation.significance.recall_interval`; NaN where
         nothing is recalled over)."""
-        return recall_interval(self.recalled_at_1, self.denominator, level)
+        return recall_interval(self.recalled_at_1, self.curve.n_positives, level)
 
 
 def correct_predictions(predictions: np.ndarray, ground_truth: GroundTruth) -> np.ndarray:

@@ -180,7 +180,8 @@ def paired_table(rows: Sequence[tuple[str, str, str, PairedComparison, PairedCom
     once."""
     if not rows:
         return ""
-    lines = ["| answers | against | tolerance | right only here | right only there | p | in stretches: here, there, p |",
+    lines = ["| answers | against | tolerance | right only here | right only there | p "
+             "| in stretches: here, there, p |",
              "|---|---|---|---:|---:|---:|---:|"]
     for first, second, tolerance, c, runs in rows:
         lines.append(f"| {first} | {second} | {tolerance} | {c.only_first} | {c.only_second} | {c.p_value:.2g} | "
