@@ -60,3 +60,11 @@ def write_json(path: Path, payload: dict[str, Any]) -> None:
                **payload}
     path.write_text(json.dumps(payload, indent=1))
     print(f"\nwrote {path}")
+
+
+def markdown_table(title: str, header: list[str], rows: list[list[Any]]) -> str:
+    """The table :func:`print_table` prints, as Markdown (for the study reports kept in benchmarks/results)."""
+    cells = [[f"{v:.3g}" if isinstance(v, float) else str(v) for v in row] for row in rows]
+    lines = [f"**{title}**", "", "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(row) + " |" for row in cells]
+    return "\n".join(lines) + "\n"

@@ -1,18 +1,13 @@
-"""How the heading is found, on the four ways of pairing the nuScenes front and rear frames (docs/opposite-view.md).
+"""How sure the heading is, against how often it is right: the reliability table on both nuScenes scenes.
 
-S1: map from the rear camera, queries from the front one (the paper's setup); S2: map from the front camera,
-queries the rear frames played backwards (the road driven the other way); S3: map from the front camera, queries
-the rear frames as recorded (a rear camera on a car driving the mapped direction); S4: map from the rear camera,
-queries the front frames played backwards (a camera moving away from what it sees, driving the other way). In S1
-and S2 the query camera moves towards what it sees, in S3 and S4 away from it. The heading is opposite in all four
-and is not declared.
+Every pairing of the front and rear cameras (S1 to S4, the heading opposite; S0, the front camera's even frames
+against its odd ones, the heading the same) on ``scene-0523`` and ``scene-0916``, at 2 Hz and 1 Hz, heading not
+declared (:mod:`scenes`). For each setting of ``[heading] misled`` and each voter left out: the frames whose heading is
+right, and every frame's heading confidence binned against the share of its bin that is right. The setting is chosen
+by the log-likelihood of the frames' headings under their confidences (how well calibrated they are), its worse scene
+best.
 
-Each variant of the heading vote is run at the recorded 2 Hz and at 1 Hz (every other frame, map and queries,
-both halves summed), with the ego poses and with visual odometry: frames whose heading is right, and of them
-those where it is sure (at least ``heading.min_confidence``), and Recall@1 at 7.5 m of the look-at points, single
-frame and with the sequence filter.
-
-    python benchmarks/study_heading.py [--variants 1,4] [--out benchmarks/results/study_heading.json]
+    python benchmarks/study_heading.py [--quick] [--out benchmarks/results/study_heading.json]
 """
 
 from __future__ import annotations
@@ -20,96 +15,91 @@ from __future__ import annotations
 import common  # noqa: F401  (first: it limits numpy's BLAS threads before numpy loads)
 
 import argparse
-import dataclasses
 import tempfile
-import warnings
-from collections.abc import Callable
 from contextlib import nullcontext
 from pathlib import Path
-from unittest import mock
 
 import numpy as np
 
-from common import RESULTS, print_table, write_json
+from common import RESULTS, markdown_table, print_table, write_json
 from lostx.core import Config
-from lostx.core.layout.compare import similarities
-from lostx.core.match.combined import LayoutComparison, lead, sampled
-from study_layout import RATES, SETUPS, TOLERANCE, Study, variant
+from scenes import PAIRINGS, RATES, SAME, SCENES, Counts, Study, variant
+from study_layout import _voters
 
-PAIRINGS = {**SETUPS, "S3": ("front", "rear", False), "S4": ("rear", "front", True)}
-"""Map camera, query camera, queries played backwards."""
-MOTIONS = {"ego poses": Config(), "visual odometry": variant(motion=dict(source="visual"))}
-
-
-def _vote_against_own_grids(comparison: LayoutComparison) -> float:
-    """The layout's vote as it was: the frame's grid as it lies and turned, both against the map camera's own grids
-    in one unshifted pass; which one's best stands further above the rest."""
-    same, turned = similarities(list(comparison.views), comparison.maps.rows(sampled(comparison.maps.n)),
-                                comparison.weights, 0, comparison.min_cells)
-    return float(np.sign(lead(turned) - lead(same)))
-
-
-VARIANTS: dict[str, tuple[dict, object]] = {
-    "half weight (default)": ({}, None),
-    "equal weights": ({"layout_vote": 1.0}, None),
-    "LoST-X alone": ({"layout_vote": 0.0}, None),
-    "equal weights, own grids (before)": ({"layout_vote": 1.0}, _vote_against_own_grids),
-    "half weight, own grids": ({}, _vote_against_own_grids),
+BINS = (0.5, 0.6, 0.7, 0.8, 0.9, 0.95, 0.99, 1.0001)
+VARIANTS = {
+    **{f"misled {e:g}{' (default)' if e == Config().heading.misled else ''}": (variant(heading=dict(misled=e)), None)
+       for e in (0.05, 0.1, 0.2, 0.3)},
+    "mirror alone": (Config(), _voters("mirror")),
+    "motion alone": (Config(), _voters("motion")),
 }
-"""The frame's vote is LoST-X's and the layout's weighted mean (``heading.layout_vote`` the layout's weight: half,
-equal, none); the layout votes with the scores each heading ranks its answers by (the matcher's), or with its
-grid as it lies and turned, both against the map camera's own grids ("own grids"). Each: the heading settings
-changed, and the layout's vote in place of the matcher's (None: the matcher's)."""
 
 
-def run_pairing(config: Config, pairing: str, every: int, study: Study) -> dict[str, int]:
-    counts = study.counts(config, PAIRINGS[pairing], every)
-    single, sequence = counts["single"], counts["sequence"]
-    return {"queries": single["counted"], "single": single["right"], "sequence": sequence["right"],
-            "heading": single["opposite"], "sure": single["sure"], "frames": single["frames"],
-            "entering": sequence["entering"], "entering right": sequence["entering right"]}
+def reliability(counts: Counts) -> list[tuple[int, int]]:
+    """(right, frames) per confidence bin."""
+    confidence, right = np.array(counts.confidences), np.array(counts.right_headings)
+    which = np.digitize(confidence, BINS) - 1
+    return [(int(right[which == b].sum()), int((which == b).sum())) for b in range(len(BINS) - 1)]
 
 
-def sixteen_runs(study: Study, changed: Callable[[Config], Config], label: str) -> dict[str, dict[str, dict[str, int]]]:
-    """:func:`run_pairing` of every pairing at each rate with each motion source, its configuration ``changed`` from
-    the motion source's; keyed "rate, motion", each column said done (after ``label``) as it ends."""
-    out = {}
-    for rate, every in RATES.items():
-        for motion, base in MOTIONS.items():
-            out[f"{rate}, {motion}"] = {p: run_pairing(changed(base), p, every, study) for p in PAIRINGS}
-            print(f"{label}: {rate}, {motion} done", flush=True)
-    return out
+def log_likelihood(counts: Counts) -> float:
+    """sum log P(the heading found is right) over the frames: the better calibrated, the higher."""
+    p = np.clip(np.array(counts.confidences), 1e-6, 1 - 1e-6)
+    right = np.array(counts.right_headings)
+    return float(np.sum(np.where(right, np.log(p), np.log(1 - p))))
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--variants", help="comma-separated numbers of the variants to run (1 = the default; all)")
+    parser.add_argument("--quick", action="store_true", help="the default only, S1 at 2 Hz: a check that it runs")
     parser.add_argument("--out", type=Path, default=RESULTS / "study_heading.json")
     args = parser.parse_args()
-    names = list(VARIANTS)
-    if args.variants:
-        names = [names[int(i) - 1] for i in args.variants.split(",")]
-    warnings.simplefilter("ignore")
-    results: dict[str, dict] = {}
-    rows = []
+    variants, pairings, rates = VARIANTS, (*PAIRINGS, *SAME), tuple(RATES)
+    if args.quick:
+        default = next(n for n in VARIANTS if "(default)" in n)
+        variants, pairings, rates = {default: VARIANTS[default]}, ("S1",), ("2 Hz",)
+    report: dict[str, dict] = {}
+    rows, tables = [], []
     with tempfile.TemporaryDirectory() as tmp:
         study = Study(Path(tmp))
-        for name in names:
-            changes, vote = VARIANTS[name]
-            patch = mock.patch("lostx.core.match.matcher.layout_vote", vote) if vote is not None else nullcontext()
-            with patch:
-                results[name] = sixteen_runs(study, lambda base, changes=changes: dataclasses.replace(
-                    base, heading=dataclasses.replace(base.heading, **changes)), name)
-            for column, out in results[name].items():
-                rows.append([name if not any(row[0] == name for row in rows) else "", column,
-                             *[f"{o['heading']} ({o['sure']}) / {o['frames']}" for o in out.values()],
-                             *[f"{o['single']}/{o['sequence']} of {o['queries']}" for o in out.values()],
-                             sum(o["heading"] for o in out.values()),
-                             sum(o["single"] + o["sequence"] for o in out.values())])
-    print_table("The heading, undeclared: frames right (of them sure) / frames; Recall@1 at 7.5 m, single/sequence",
-                ["variant", "frames, motion", *[f"{p} heading" for p in PAIRINGS], *[f"{p} R@1" for p in PAIRINGS],
-                 "heading sum", "R@1 sum"], rows)
-    write_json(args.out, {"tolerance_m": TOLERANCE, "pairings": PAIRINGS, "variants": results})
+        for name, (config, patch) in variants.items():
+            pooled = {scene: Counts() for scene in SCENES}
+            cells = []
+            for scene in SCENES:
+                for rate in rates:
+                    for pairing in pairings:
+                        if pairing in SAME and rate != "2 Hz":
+                            continue
+                        c = study.counts(config, scene, pairing, RATES[rate], patch or nullcontext)["sequence"]
+                        pooled[scene].add(c)
+                        cells.append(f"{c.heading}/{c.frames}")
+            likelihood = {scene: log_likelihood(pooled[scene]) for scene in SCENES}
+            rows.append([name, *cells, *(f"{likelihood[s]:.0f}" for s in SCENES)])
+            for scene in SCENES:
+                tables.append([name if scene == SCENES[0] else "", scene[-4:],
+                               *(f"{r}/{n}" if n else "" for r, n in reliability(pooled[scene]))])
+            report[name] = {"log_likelihood": likelihood,
+                            "reliability": {s: reliability(pooled[s]) for s in SCENES},
+                            "right": {s: [pooled[s].heading, pooled[s].frames] for s in SCENES}}
+            print(f"{name} done", flush=True)
+    columns = [f"{s[-4:]} {p}{'' if r == '2 Hz' else ' 1 Hz'}" for s in SCENES for r in rates for p in pairings
+               if not (p in SAME and r != "2 Hz")]
+    first = ("The heading, undeclared: frames right / frames (sequence mode), and the log-likelihood of the frames' "
+             "headings under their confidences", ["variant", *columns, *(f"{s[-4:]} log-lik" for s in SCENES)], rows)
+    second = ("Reliability: frames right / frames, by heading confidence",
+              ["variant", "scene", *(f"{lo:g}-{min(hi, 1):g}" for lo, hi in zip(BINS, BINS[1:]))], tables)
+    markdown = [f"# {__doc__.splitlines()[0]}\n", "Written by `python benchmarks/study_heading.py`.\n"]
+    for table in (first, second):
+        print_table(*table)
+        markdown.append(markdown_table(*table))
+    misled = {n: r for n, r in report.items() if n.startswith("misled")}
+    if len(misled) > 1:
+        best = max(misled, key=lambda n: min(misled[n]["log_likelihood"].values()))
+        print(f"the rule's choice (its worse scene's log-likelihood best): {best}")
+        markdown.append(f"- the rule's choice (its worse scene's log-likelihood best): {best}\n")
+    if not args.quick:
+        args.out.with_suffix(".md").write_text("\n".join(markdown))
+    write_json(args.out, {"benchmark": "study_heading", "bins": BINS, "variants": report})
 
 
 if __name__ == "__main__":

@@ -37,6 +37,8 @@ LayoutUse = Literal["auto", "on", "off"]
 MotionSource = Literal["auto", "odometry", "visual"]
 Follow = Literal["auto", "distance", "frames"]
 WarmUp = Literal["sequence", "single"]
+CUES: tuple[str, ...] = ("lostx", "layout", "appearance")
+"""The single-frame cues (lostx.core.match.combined), in the order their weights are reported."""
 
 
 @dataclass(frozen=True)
@@ -244,7 +246,7 @@ class LayoutConfig:
     """The grid's centre, metres ahead of the camera along its axis."""
     max_range: float = 60.0
     """Rays landing further from the camera than this are not used (their ground points are too coarse)."""
-    blur: float = 2.0
+    blur: float = 1.0
     """Standard deviation of the smoothing, metres."""
     query_travel: float = 24.0
     """A live frame's grid gathers the frames of the last this many metres travelled (never future ones)."""
@@ -255,20 +257,28 @@ class LayoutConfig:
     across_shift: float = 4.0
     """The grids are compared shifted sideways up to this many metres: a car driving the road the other way drives
     another lane, 3 to 3.7 m over (benchmarks/study_lane.py)."""
-    turns: tuple[float, ...] = (-2.0, 0.0, 2.0)
+    turns: tuple[float, ...] = (-5.0, 0.0, 5.0)
     """The most similar map grids are compared again with the query's turned by these angles (degrees) about its
     centre: views of a curve from its two ends are not exactly 180 degrees apart, and the gathered frames' motion
-    and the camera's mounting are known to a degree or two."""
+    and the camera's mounting are known to a few degrees."""
     vehicle_weight: float = 0.5
     """Weight of the vehicles' channel against the others' 1: parked cars come and go between visits."""
-    building_weight: float = 0.5
-    """Weight of the buildings' channel against the others' 1: a facade's foot lies at the side of the road, seen at a
-    grazing angle and behind parked cars and trees, so each end sees a different part of it (measured:
-    docs/opposite-view.md, The buildings' weight)."""
     min_cells: int = 25
     """Cells both grids must observe for a comparison to count."""
-    weight: float = 3.0
-    """Weight of the layout's standardised score beside LoST-X's in the combined score (lostx.core.match.combined)."""
+
+
+@dataclass(frozen=True)
+class CuesConfig:
+    """The single-frame cues (LoST-X, the layout, appearance) and how much each counts (see
+    lostx.core.match.combined and lostx.core.route.agreement)."""
+
+    appearance: bool = True
+    """Appearance (GeM pooling of the network's features) takes part as a cue where the map holds its descriptors."""
+    weights: dict[str, float] = field(default_factory=dict)
+    """Fixed weights by cue (``lostx``, ``layout``, ``appearance``), for comparisons; empty: each cue's weight is what
+    it earns on the stream, how often its answer lands where its own trajectory predicted."""
+    agree_within: float = 3.0
+    """Map frames within which a cue's answer counts as landing where its trajectory predicted it."""
 
 
 @dataclass(frozen=True)
@@ -305,20 +315,14 @@ class HeadingConfig:
     driving the map's direction (a front camera on a front-camera map: ``same``). 0.5 assumes nothing
     about the direction of travel (the declared camera then only ties that direction to the heading
     found); 0.9 for a vehicle known to drive the mapped direction; 1.0 trusts the declaration outright."""
-    vote_reliability: float = 0.65
-    """How often one frame's vote (its candidates scored with the query's x mirrored against not) points
-    the right way; each vote multiplies the odds by reliability / (1 - reliability)."""
-    layout_vote: float = 0.5
-    """Where the frames have a layout: the weight of its vote beside LoST-X's (weight 1); a frame's vote is their
-    weighted mean. The layout's vote is right less often (docs/opposite-view.md: about 6 frames in 10, LoST-X's 8 in 10
-    of those it decides, over the four ways of pairing a front and a rear camera); 0 leaves the heading to LoST-X."""
-    layout_after: float = 6.0
-    """Metres a live frame's layout grid must have gathered (from the camera now to its farthest frame) before the
-    layout votes: a frame's own cone of road fits the map's grids about as well turned as not, and such votes were
-    right in 30 of 62 frames of the opposite-view study, against 409 of 578 once gathered further
-    (docs/opposite-view.md, How lostx handles the heading)."""
+    misled: float = 0.1
+    """How likely any one voter is to be misled by a road, pointing the wrong way however consistently (a street that
+    looks alike both ways, a turn where neither heading holds): a sure voter moves the heading's odds by at most
+    (1 - misled) / misled, and voters that disagree leave it uncertain (see lostx.core.route.heading). Chosen across
+    both nuScenes scenes for the heading's calibration (benchmarks/study_heading.py)."""
     switch: float = 0.0003
-    """Probability per frame that the heading changes (the vehicle turned round, another camera)."""
+    """Probability per frame that the heading changes (the vehicle turned round, another camera): the votes are
+    forgotten over 1 / switch frames."""
     min_confidence: float = 0.9
     """A sequence answer is ``localized`` only when its heading is at least this probable."""
 
@@ -426,6 +430,7 @@ class Config:
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
     heading: HeadingConfig = field(default_factory=HeadingConfig)
     layout: LayoutConfig = field(default_factory=LayoutConfig)
+    cues: CuesConfig = field(default_factory=CuesConfig)
     motion: MotionConfig = field(default_factory=MotionConfig)
     decision: DecisionConfig = field(default_factory=DecisionConfig)
     stream: StreamConfig = field(default_factory=StreamConfig)
@@ -487,11 +492,11 @@ LIMITS: dict[str, dict[str, Bounds]] = {
         "cell": Bounds(0.1, 10), "length": Bounds(1, 200), "width": Bounds(1, 200), "centre": Bounds(0, 200),
         "max_range": _ABOVE_0, "blur": Bounds(0, 20), "query_travel": _AT_LEAST_0, "map_travel": _AT_LEAST_0,
         "max_frames": Bounds(1, 200), "across_shift": Bounds(0, 20), "turns": Bounds(-90, 90), "vehicle_weight": Bounds(0, 1),
-        "building_weight": Bounds(0, 1), "min_cells": _AT_LEAST_1, "weight": Bounds(0, 100),
+        "min_cells": _AT_LEAST_1,
     },
+    "cues": {"weights": _AT_LEAST_0, "agree_within": _AT_LEAST_0},
     "motion": {"visual_width": Bounds(64, 8192)},
-    "heading": {"declared_prior": Bounds(0.5, 1), "vote_reliability": Bounds(0.5, 0.999),
-                "layout_vote": Bounds(0, 1), "layout_after": _AT_LEAST_0, "switch": Bounds(0, 0.5),
+    "heading": {"declared_prior": Bounds(0.5, 1), "misled": Bounds(0, 0.5, above=True), "switch": Bounds(0, 0.5),
                 "min_confidence": Bounds(0.5, 1)},
     "decision": {"min_confidence": Bounds(0, 1), "calibration_frames": _AT_LEAST_1},
     "tracker": {
@@ -521,9 +526,10 @@ def check_config(config: Config) -> None:
             if isinstance(value, tuple) and not value:
                 raise InputError(f"[{section}] {key} must not be empty")
             if isinstance(value, dict):
-                unknown = sorted(set(value) - set(CAMERAS))
+                names, what = (CUES, "cue") if (section, key) == ("cues", "weights") else (CAMERAS, "camera")
+                unknown = sorted(set(value) - set(names))
                 if unknown:
-                    raise InputError(f"[{section}] {key}: unknown camera {unknown[0]!r}; cameras: {', '.join(CAMERAS)}")
+                    raise InputError(f"[{section}] {key}: unknown {what} {unknown[0]!r}; {what}s: {', '.join(names)}")
             items = value.values() if isinstance(value, dict) else value if isinstance(value, tuple) else (value,)
             for item in items:
                 if not bounds.allows(item):

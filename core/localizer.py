@@ -12,17 +12,17 @@
    implausible jumps, narrows the speeds searched next, and restarts after a
    genuine jump.
 
-The heading (the query viewing the route the same way as the map or the
-opposite way) is found from the evidence by a :class:`HeadingFilter`; the
-frame's matches under that heading feed the later stages; while it is not yet
-sure, those under the other heading fill a sequence window of their own, so
-that where the evidence turns the heading the answers follow a window of the
-new heading's matches. A declared camera
-ties the direction of travel to the heading; undeclared, trajectories of both
-signs are searched, and the direction of travel is found from them
-(:class:`DirectionFilter`): once it is sure, the answer keeps to it. While the
-window fills, the answer is the best trajectory so far (``sequence.warm_up``),
-flagged ``warming_up``.
+The cues of a frame (LoST-X, the layout, appearance) are combined with the weights they earned on the stream: how
+often each one's answer lands where its own trajectory predicted (:mod:`lostx.core.route.agreement`). The heading
+(the query viewing the route the same way as the map or the opposite way) is found from the evidence by a
+:class:`HeadingFilter`, whose voters are LoST-X's mirrored verification and which heading's combined answers keep to
+their trajectory; both headings' answers fill a sequence window of their own, so that wherever the evidence turns the
+heading the answers follow a window of the new heading's matches. A declared camera ties the direction of travel to
+the heading; undeclared, trajectories of both signs are searched, and the direction of travel is found from them
+(:class:`DirectionFilter`): once it is sure, the answer keeps to it. While the window fills, the answer is the best
+trajectory so far (``sequence.warm_up``), flagged ``warming_up``. Where the recent frames' own answers do not keep to
+the answering trajectory (the motion and the matches disagree, :class:`Disagreement`), the answer says so
+(``disagrees``).
 
 The margin, what the confidence is calibrated from:
 
@@ -68,12 +68,15 @@ from .errors import InputError, StateError
 from .frame import HEADINGS, Frame, Heading
 from .images import check_frame
 from .maps.refmap import ReferenceMap
+from .motion.odometer import mounting
 from .match.costs import EveryFrameCosts, LookedUpCosts
-from .match.matcher import FrameMatch, MatchResult, PlaceMatcher
+from .match.combined import EVERY_FRAME_MAX, CombinedScores
+from .match.matcher import FrameMatch, MatchResult, PlaceMatcher, combined_result, without
 from .match.verify import Correspondences, verify
+from .route.agreement import CueAgreement, Disagreement, agrees
 from .route.direction import DirectionFilter
 from .route.heading import HeadingFilter
-from .route.sequence import SequenceFilter, signed
+from .route.sequence import SequenceFilter, SequenceResult, signed
 from .route.tracker import RouteTracker
 
 WINDOW_PICTURE_WIDTH = 15
@@ -112,22 +115,16 @@ class Localizer:
                 calibration = calibrate(refmap, self.config, self.matcher.backbone)
                 store(refmap.path, calibration)
         self.calibration = calibration
-        self.sequence = self._sequence_filter(None)
-        """The sequence filter over the frames' matches under the heading found."""
-        self._other: SequenceFilter | None = None
-        """While the heading is not sure: the sequence filter under the other heading, so that the answer follows the
-        heading found with a window of its own matches, not of the other's."""
-        self._sequence_heading: Heading | None = None
-        """The heading whose matches :attr:`sequence` holds."""
-        self.following_distance: bool | None = None
-        """Whether the sequence filter follows the distance travelled (where the map and the frames have motion);
-        None before any frame."""
-        self._last_progress: float | None = None
         self.tracker = RouteTracker(self.config.tracker)
         self.heading = HeadingFilter(self.config.heading)
         seq = self.config.sequence
         self.direction = DirectionFilter(seq.direction_reliability, self.config.heading.switch, seq.direction_scale)
-        self._last_timestamp: float | None = None
+        self.reset()
+
+    @property
+    def sequence(self) -> SequenceFilter:
+        """The sequence filter over the frames' combined matches under the heading answered with."""
+        return self.filters[self._answering or "same"]
 
     def _sequence_filter(self, route: np.ndarray | None) -> SequenceFilter:
         seq = self.config.sequence
@@ -139,29 +136,50 @@ class Localizer:
                               seq.anchors, window // 2, route, seq.distance_window,
                               seq.distance_window / seq.length, seq.switch_cost)
 
+    def _route(self) -> np.ndarray | None:
+        return self.map.progress if self.following_distance else None
+
+    def _fresh(self) -> None:
+        """Every heading's sequence filter, the cues' agreements and what they predicted, started afresh (at the
+        first frame, and where the trajectories start following the distance travelled)."""
+        route = self._route()
+        self.filters: dict[Heading, SequenceFilter] = {h: self._sequence_filter(route) for h in HEADINGS}
+        """Each heading's sequence filter over its frames' combined matches."""
+        self._last: dict[Heading, SequenceResult | None] = {h: None for h in HEADINGS}
+        """Each heading's best trajectory after the latest frame: where it predicts the next answer."""
+        self._disagreement = {h: Disagreement() for h in HEADINGS}
+        memory = 2.0 * self.config.sequence.length
+        within = self.config.cues.agree_within
+        self.cues: dict[str, CueAgreement] = {
+            key: CueAgreement(lambda: self._sequence_filter(route), memory, within) for key in _CUE_KEYS}
+        """Each cue's own sequence filter and agreement, by cue and heading (appearance sees both alike)."""
+
     def _follow(self, progress: float | None) -> None:
-        """Choose what the sequence filter's trajectories are straight in: at a traverse's first frame, and again
-        at the first frame whose distance travelled is known where the first ones' was not (the filter then starts
+        """Choose what the sequence filters' trajectories are straight in: at a traverse's first frame, and again
+        at the first frame whose distance travelled is known where the first ones' was not (the filters then start
         afresh, following the distance)."""
         follow = self.config.sequence.follow
-        route = self.map.progress if follow != "frames" and progress is not None else None
+        distance = follow != "frames" and progress is not None and self.map.progress is not None
         if follow == "distance" and self.map.progress is None:
             raise InputError("[sequence] follow = distance needs motion for the map and the frames (odometry, or a "
                              "camera geometry for visual odometry)")
-        if self.following_distance is None or route is not None:
-            self.following_distance = route is not None
-            self.sequence, self._other = self._sequence_filter(route), None
+        if self.following_distance is None or distance:
+            self.following_distance = distance
+            self._fresh()
 
     def reset(self) -> None:
         """Forget everything seen so far (start of a new traverse)."""
         self.matcher.reset()
-        self.sequence, self._other, self._sequence_heading = self._sequence_filter(None), None, None
-        self.following_distance = None
-        self._last_progress = None
+        self.following_distance: bool | None = None
+        """Whether the sequence filters follow the distance travelled (where the map and the frames have motion);
+        None before any frame."""
+        self._fresh()
+        self._answering: Heading | None = None
+        self._last_progress: float | None = None
         self.tracker.reset()
         self.heading.reset()
         self.direction.reset()
-        self._last_timestamp = None
+        self._last_timestamp: float | None = None
 
     def step(self, frame: Frame) -> Estimate:
         start = time.perf_counter()
@@ -183,54 +201,81 @@ class Localizer:
         return estimate
 
     def update(self, frame: Frame, matches: FrameMatch) -> Estimate:
-        """Advance the heading, sequence filter and tracker with the single-frame matches of ``frame``.
+        """Advance the cues' weights, the heading, the sequence filters and the tracker with the single-frame matches
+        of ``frame``.
 
         :meth:`step` computes the matches with its own matcher; evaluation feeds matches of
         other single-frame methods (or cached ones) through the same stages here.
         """
-        heading, sure = self.heading.update(matches.heading_evidence, self._declared_heading(frame))
-        result = matches[heading]
+        declared = self._declared_heading(frame)
+        fixed = declared if declared is not None and self.config.heading.declared_prior >= 1.0 else None
+        followed: tuple[Heading, ...] = (fixed,) if fixed is not None else HEADINGS  # type: ignore[assignment]
+        if not self.following_distance:
+            self._follow(matches.progress)
+        progress = matches.progress if self.following_distance else None
+        if self.following_distance and progress is None:
+            progress = self._last_progress  # the distance moved is not known: as if it stood still
+        self._last_progress = progress
+        t0 = time.perf_counter()
+        advanced: set[str] = set()
+        combined = {h: self._combined(matches[h], h, progress, advanced) for h in followed}
+        agreed = {h: agrees(combined[h].best, self._last[h], self.config.cues.agree_within) for h in followed}
+        cue_seconds = time.perf_counter() - t0
+        votes = {"mirror": matches.heading_evidence, "motion": _motion_vote(agreed)}
+        heading, sure = self.heading.update(votes, declared)
+        if heading not in combined:
+            heading = followed[0]
+        if self._answering is not None and heading != self._answering:
+            self.tracker.reset()  # the track is of the other heading's answers
+        self._answering = heading
+        for h in followed:
+            self._disagreement[h].add(agreed[h])
+        result = combined[heading]
         latency = {k: 1e3 * v for k, v in result.timings.items()}
+        if advanced:
+            latency["cues"] = 1e3 * cue_seconds  # each cue's agreement and the combination
+        t1 = time.perf_counter()
         if self.config.sequence.enabled:
-            if not self.following_distance:
-                self._follow(matches.progress)
-            progress = matches.progress if self.following_distance else None
-            if self.following_distance and progress is None:
-                progress = self._last_progress  # the distance moved is not known: as if it stood still
-            self._last_progress = progress
-            self._follow_heading(heading)
-            estimate = self._sequence_estimate(frame, result, sure, latency, self._travel_direction(frame, heading, sure),
-                                               progress)
-            t0 = time.perf_counter()
-            if self._other_heading(matches, heading, sure, progress):
-                latency["other heading"] = 1e3 * (time.perf_counter() - t0)
+            direction = self._travel_direction(frame, heading, sure)
+            estimate = self._sequence_estimate(frame, result, sure, latency, direction, progress)
+            t1 = time.perf_counter()
         else:
             estimate = self._single_estimate(frame, result, sure)
+        for h in followed:
+            if h != heading:
+                self._last[h] = self.filters[h].update(combined[h].map_scores, combined[h].candidates,
+                                                       combined[h].nearest, self._plausible_speeds(0), progress)
+        if len(followed) > 1 or not self.config.sequence.enabled:
+            # Single frame, every heading's trajectories are the heading's evidence (which one's answers keep to them).
+            latency["other heading" if self.config.sequence.enabled else "heading"] = 1e3 * (time.perf_counter() - t1)
         estimate.heading_confidence = sure
+        estimate.cue_weights = dict(result.weights) if result.weights is not None else {}
         estimate.latency_ms = latency
         return estimate
 
-    def _follow_heading(self, heading: Heading) -> None:
-        """Answer from the sequence filter over the matches under ``heading``: where the heading found changed, the
-        one kept under it while it was unsure (else a fresh one); the route tracker starts again, its track being of
-        the other heading's answers."""
-        if self._sequence_heading is not None and heading != self._sequence_heading:
-            other = self._other if self._other is not None else self._sequence_filter(self.sequence.route)
-            self.sequence, self._other = other, self.sequence
-            self.tracker.reset()
-        self._sequence_heading = heading
-
-    def _other_heading(self, matches: FrameMatch, heading: Heading, sure: float, progress: float | None) -> bool:
-        """While the heading is less than ``heading.min_confidence`` probable, the frame's matches under the other
-        heading go to a sequence filter of their own (True: they did); once it is sure, that filter is dropped."""
-        if sure >= self.config.heading.min_confidence:
-            self._other = None
-            return False
-        if self._other is None:
-            self._other = self._sequence_filter(self.sequence.route)
-        result = matches[HEADINGS[1 - HEADINGS.index(heading)]]
-        self._other.update(result.map_scores, result.candidates, result.nearest, self._plausible_speeds(0), progress)
-        return True
+    def _combined(self, result: MatchResult, heading: Heading, progress: float | None,
+                  advanced: set[str]) -> MatchResult:
+        """``result`` (LoST-X's answer under ``heading``, its cues attached) ranked by its cues combined with the
+        weights they earned (fixed ``cues.weights`` where given); each cue's agreement advanced with this frame (once
+        a frame: ``advanced`` holds those already advanced, appearance being the same under both headings)."""
+        cues = result.cues
+        if cues is None or len(cues.present()) < 2:
+            return result
+        fixed = self.config.cues.weights
+        weights: dict[str, float] = {}
+        for name in cues.present():
+            key = _cue_key(name, heading)
+            agreement = self.cues[key]
+            if key not in advanced:
+                advanced.add(key)
+                if name == "lostx":
+                    agreement.update(cues.lostx, result.best, result.candidates, result.nearest, progress)
+                else:
+                    alone = without(CombinedScores(cues, {name: 1.0}), cues.lostx.removed)
+                    candidates = _best_of(alone, result, self.config.verify.top_k)
+                    agreement.update(alone, int(candidates[0]), candidates, result.nearest, progress)
+            weights[name] = fixed.get(name, 0.0) if fixed else agreement.weight(self.map.n_frames)
+        return combined_result(result, weights, self.config.verify.top_k, self.config.verify.uniqueness_exclusion)
 
     def _declared_heading(self, frame: Frame) -> Heading | None:
         if frame.camera is None:
@@ -238,6 +283,8 @@ class Localizer:
         return "opposite" if frame.camera != self.map.camera else "same"
 
     def _single_estimate(self, frame: Frame, result: MatchResult, heading_sure: float) -> Estimate:
+        self._last[result.heading] = self.filters[result.heading].update(
+            result.map_scores, result.candidates, result.nearest, self._plausible_speeds(0), self._last_progress)
         confidence = self.calibration.single_confidence(result.confidence)
         localized = self._confident(confidence, heading_sure)
         estimate = self._estimate(frame, result, result.best, "localized" if localized else "not_localized",
@@ -251,20 +298,23 @@ class Localizer:
     def _sequence_estimate(self, frame: Frame, result: MatchResult, heading_sure: float, latency: dict,
                            direction: int, progress: float | None) -> Estimate:
         cfg = self.config.sequence
+        sequence = self.filters[result.heading]
         t0 = time.perf_counter()
-        costs_before = self.sequence.costs.seconds
+        costs_before = sequence.costs.seconds
         speeds = self._plausible_speeds(direction)
         if direction:
-            self.sequence.keep_direction(direction)
-        seq = self.sequence.update(result.map_scores, result.candidates, result.nearest, speeds, progress)
-        along, along_sure = self.direction.update(*self.sequence.best_by_sign())
+            sequence.keep_direction(direction)
+        seq = sequence.update(result.map_scores, result.candidates, result.nearest, speeds, progress)
+        along, along_sure = self.direction.update(*sequence.best_by_sign())
         if not direction and along_sure >= self.config.heading.min_confidence:
-            seq = self.sequence.choose(along)
-        runner_up = self.sequence.runner_up(seq.position, cfg.exclusion)
+            seq = sequence.choose(along)
+        self._last[result.heading] = seq
+        runner_up = sequence.runner_up(seq.position, cfg.exclusion)
         margin = max(0.0, runner_up - seq.mean) if np.isfinite(runner_up) else np.inf
         t1 = time.perf_counter()
-        t_costs = t0 + (self.sequence.costs.seconds - costs_before)  # the costs' share of the update
-        warming = not self.sequence.full
+        t_costs = t0 + (sequence.costs.seconds - costs_before)  # the costs' share of the update
+        warming = not sequence.full
+        disagrees = not warming and self._disagreement[result.heading].disagree
         confidence = 0.0 if warming else self.calibration.sequence_confidence(margin)
         confident = self._confident(confidence, heading_sure)
         position, speed, trusted = seq.position, seq.speed, confident
@@ -280,17 +330,18 @@ class Localizer:
         latency["costs"] = 1e3 * (t_costs - t0)
         latency["sequence"] = 1e3 * (t1 - t_costs)
         latency["tracker"] = 1e3 * (t2 - t1)
-        if warming and self.config.sequence.warm_up == "single":
+        if warming and cfg.warm_up == "single":
             position = float(result.best)
-        index = int(np.clip(np.rint(position), 0, self.map.n_frames - 1))
+        index = int(np.clip(np.rint(position), 0, self.map.n_frames - 1)) if np.isfinite(position) else result.best
         estimate = self._estimate(frame, result, index, state, confidence, seq.score)
         estimate.margin = float(margin)
         estimate.sequence_score = seq.score
         estimate.speed = float(speed)
         estimate.window = seq.frames
         estimate.warming_up = warming
+        estimate.disagrees = disagrees
         if estimate.evidence is not None:
-            window, refs = self.sequence.window(WINDOW_PICTURE_WIDTH)
+            window, refs = sequence.window(WINDOW_PICTURE_WIDTH)
             estimate.evidence.sequence_window = window
             estimate.evidence.sequence_candidates = refs
         return estimate
@@ -307,12 +358,19 @@ class Localizer:
         if sure < self.config.heading.min_confidence:
             return 0
         if self.following_distance:
-            # Metres along the map's route per metre along the camera's axis: the cameras progress together when
-            # they view the road the same way, against each other from its two ends.
-            return self.map.progress_sign * (1 if heading == "same" else -1)
+            # Metres along the map's route per metre the vehicle drives: the vehicles progress together when they
+            # drive the road the same way, which the heading tells through how the two cameras are mounted.
+            mounted = self._mounting(frame)
+            return self.map.progress_sign * (1 if heading == "same" else -1) * mounted
         if frame.camera is None:
             return 0
         return 1 if (heading == "same") == (frame.camera == self.map.camera) else -1
+
+    def _mounting(self, frame: Frame) -> int:
+        """:func:`mounting` of the frame's camera and the map's (+1 where either is unknown: both ahead)."""
+        map_camera = self.map.camera_geometry
+        query_yaw = frame.geometry.yaw if frame.geometry is not None else 0.0
+        return mounting(query_yaw, map_camera.yaw if map_camera is not None else 0.0)
 
     def _plausible_speeds(self, direction: int) -> np.ndarray:
         """Speeds of the trajectories the new frame spawns: the tracker's band, or the acquisition range;
@@ -378,7 +436,7 @@ class Localizer:
         """The surviving correspondences of the frame (its keypoint evidence ``query``) with map frame ``reference``."""
         corr = result.correspondences_for(reference)
         if corr is None and query is not None:
-            # The sequence answer was not among the verified candidates: verify it too, to draw it.
+            # The answer was not among the verified candidates: verify it too, to draw it.
             distance = float(result.distances[0]) if len(result.distances) else 1.0
             extra = verify(query, self.map.evidence([reference]), np.array([distance]),
                            opposite=result.heading == "opposite", scoring=self.config.verify.scoring,
@@ -393,13 +451,17 @@ class Localizer:
         return float(x), float(y)
 
     def state(self) -> dict:
-        """Everything that carries from one frame to the next (the matcher's query statistics, the sequence window,
-        the tracker, the heading filter, what the trajectories follow), as plain values and numpy arrays: a
-        localizer over the same map and settings given it by :meth:`restore` answers the next frames exactly as
-        this one would. :class:`StateError` where a part cannot be carried (costs looked up on a very large map)."""
-        return {"map_frames": self.map.n_frames, "matcher": self.matcher.state(), "sequence": self.sequence.state(),
-                "other_sequence": None if self._other is None else self._other.state(),
-                "sequence_heading": self._sequence_heading, "following_distance": self.following_distance,
+        """Everything that carries from one frame to the next (the matcher's query statistics, each heading's
+        sequence window and prediction, the cues' agreements, the tracker, the heading's votes, what the trajectories
+        follow), as plain values and numpy arrays: a localizer over the same map and settings given it by
+        :meth:`restore` answers the next frames exactly as this one would. :class:`StateError` where a part cannot
+        be carried (costs looked up on a very large map)."""
+        return {"map_frames": self.map.n_frames, "matcher": self.matcher.state(),
+                "filters": {h: f.state() for h, f in self.filters.items()},
+                "last": {h: None if r is None else _result_state(r) for h, r in self._last.items()},
+                "disagreement": {h: d.state() for h, d in self._disagreement.items()},
+                "cues": {key: c.state() for key, c in self.cues.items()},
+                "answering": self._answering, "following_distance": self.following_distance,
                 "last_progress": self._last_progress,
                 "tracker": self.tracker.state(), "heading": self.heading.state(), "direction": self.direction.belief,
                 "last_timestamp": self._last_timestamp}
@@ -409,21 +471,66 @@ class Localizer:
         if state["map_frames"] != self.map.n_frames:
             raise StateError(f"a saved state over a map of {state['map_frames']} frames, this map has "
                              f"{self.map.n_frames}")
+        if "filters" not in state:
+            raise StateError("a saved state of an earlier lostx (one sequence window, not one per heading)")
         self.reset()
         self.matcher.restore(state["matcher"])
         self.following_distance = state["following_distance"]
-        if self.following_distance is not None:
-            self.sequence = self._sequence_filter(self.map.progress if self.following_distance else None)
-        self.sequence.restore(state["sequence"])
-        if state.get("other_sequence") is not None:
-            self._other = self._sequence_filter(self.sequence.route)
-            self._other.restore(state["other_sequence"])
-        self._sequence_heading = state.get("sequence_heading")
+        self._fresh()
+        for h, saved in state["filters"].items():
+            self.filters[h].restore(saved)
+        for h, saved in state["last"].items():
+            self._last[h] = None if saved is None else _result_from_state(saved)
+        for h, saved in state["disagreement"].items():
+            self._disagreement[h].restore(saved)
+        for key, saved in state["cues"].items():
+            self.cues[key].restore(saved)
+        self._answering = state["answering"]
         self._last_progress = state["last_progress"]
         self.tracker.restore(state["tracker"])
         self.heading.restore(state["heading"])
         self.direction.restore(state["direction"])
         self._last_timestamp = state["last_timestamp"]
+
+
+_CUE_KEYS = ("lostx|same", "lostx|opposite", "layout|same", "layout|opposite", "appearance")
+
+
+def _cue_key(name: str, heading: Heading) -> str:
+    """A cue's agreement key: per heading, but for appearance, which sees both headings alike."""
+    return name if name == "appearance" else f"{name}|{heading}"
+
+
+def _best_of(scores, result: MatchResult, k: int) -> np.ndarray:  # noqa: ANN001
+    """The ``k`` map frames a cue scores best (lower is better), among every map frame where the map is small enough,
+    else among the search's nearest and LoST-X's candidates."""
+    n = scores.n_frames
+    if n <= EVERY_FRAME_MAX:
+        values = scores.every()
+        pool = np.arange(n)
+    else:
+        pool = np.union1d(result.nearest, result.candidates)  # type: ignore[arg-type]
+        values = scores.at(pool)
+    order = np.lexsort((pool, values))[:k]
+    return pool[order]
+
+
+def _motion_vote(agreed: dict[Heading, bool | None]) -> float | None:
+    """+1 where only the opposite heading's answer kept to its trajectory, -1 only the same's, 0 both or neither;
+    None where either had no prediction (or only one heading is followed)."""
+    same, opposite = agreed.get("same"), agreed.get("opposite")
+    if same is None or opposite is None:
+        return None
+    return float(opposite) - float(same)
+
+
+def _result_state(result: SequenceResult) -> list:
+    return [result.position, result.speed, result.score, result.frames, result.trajectory, result.mean]
+
+
+def _result_from_state(saved: list) -> SequenceResult:
+    return SequenceResult(float(saved[0]), float(saved[1]), float(saved[2]), int(saved[3]), np.asarray(saved[4]),
+                          float(saved[5]))
 
 
 def _candidates(result: MatchResult) -> list[Candidate]:
@@ -462,7 +569,8 @@ def calibrate(refmap: ReferenceMap, config: Config, backbone: Backbone | None = 
                 continue
             if route is not None:
                 matches.progress = refmap.progress_sign * float(route[index])
-            frame = Frame(id=int(index), image=_NO_PIXELS, camera=refmap.camera)  # type: ignore[arg-type]
+            frame = Frame(id=int(index), image=_NO_PIXELS, camera=refmap.camera,  # type: ignore[arg-type]
+                          geometry=refmap.camera_geometry)
             estimate = localizer.update(frame, matches)
             single.append(matches.same.confidence)
             if not estimate.warming_up:

@@ -3,7 +3,8 @@
 Methods (all on the same frames and the same ground truth):
 
 - ``lostx``: LoST descriptor search + spatial layout verification (the paper's LoST-X), with the layout of the
-  place on the road where the frames have a camera geometry (lostx.core.layout);
+  place on the road where the frames have a camera geometry (lostx.core.layout) and appearance, each cue weighted by
+  what it earns on the stream (lostx.core.route.agreement);
 - ``lostx-nolayout``: LoST-X alone; ``layout``: the layout alone (its weight beside LoST-X made overwhelming);
 - ``lost``: the LoST descriptor alone (the paper's "LoST");
 - ``appearance``: GeM pooling of the same network's features, cosine distance (an
@@ -65,8 +66,8 @@ HEADING_METHODS = ("lostx", "lostx-nolayout", "layout", "thumbnail")
 pooled descriptors (LoST alone, GeM) are the same both ways."""
 LAYOUT_METHODS = ("lostx-nolayout", "layout")
 """The methods that differ from ``lostx`` only where the frames have a layout."""
-LAYOUT_ALONE = 100.0
-"""The layout's weight beside LoST-X for the ``layout`` method: LoST-X then only breaks ties."""
+LAYOUT_ALONE = {"lostx": 0.01, "layout": 1.0}
+"""The fixed cue weights of the ``layout`` method: LoST-X only breaks the layout's ties."""
 
 
 @dataclass
@@ -261,15 +262,16 @@ def single_results(method: str, pair: DatasetPair, maps: dict[str, ReferenceMap]
 
 
 def method_config(method: str, config: Config) -> Config:
-    """The settings a method runs with: LoST alone does not verify; LoST-X without the layout turns it off; the
-    layout alone outweighs LoST-X."""
+    """The settings a method runs with: LoST alone does not verify; LoST-X without the layout is LoST-X alone (the
+    layout and appearance off); the layout alone outweighs LoST-X, with appearance off."""
     verify = dataclasses.replace(config.verify, enabled=method != "lost")
-    layout = config.layout
+    layout, cues = config.layout, config.cues
     if method == "lostx-nolayout":
         layout = dataclasses.replace(layout, enabled="off")
+        cues = dataclasses.replace(cues, appearance=False)
     elif method == "layout":
-        layout = dataclasses.replace(layout, weight=LAYOUT_ALONE)
-    return dataclasses.replace(config, verify=verify, layout=layout)
+        cues = dataclasses.replace(cues, appearance=False, weights=dict(LAYOUT_ALONE))
+    return dataclasses.replace(config, verify=verify, layout=layout, cues=cues)
 
 
 def runs_of(method: str, matches: list[FrameMatch], refmap: ReferenceMap, query: Traverse, config: Config,
@@ -283,9 +285,10 @@ def runs_of(method: str, matches: list[FrameMatch], refmap: ReferenceMap, query:
         too_short = localizer.calibration.too_short(sequence.enabled, config.decision.min_confidence)
         estimates = []
         for i, frame_matches in enumerate(matches):
-            # These stages read the frame's id, clock and camera, never its pixels.
+            # These stages read the frame's id, clock, camera and its mounting, never its pixels.
             stamp = float(query.timestamps[i]) if query.timestamps is not None else None
-            frame = Frame(id=i, image=np.zeros((1, 1, 3), np.uint8), timestamp=stamp, camera=query.camera)
+            frame = Frame(id=i, image=np.zeros((1, 1, 3), np.uint8), timestamp=stamp, camera=query.camera,
+                          geometry=query.geometry)
             estimates.append(localizer.update(frame, frame_matches))
         lists = [[e.match_index] + [c.index for c in e.candidates if c.index != e.match_index] for e in estimates]
         out.append(Run(method, mode, np.array([e.match_index for e in estimates]),

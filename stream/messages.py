@@ -204,6 +204,11 @@ class Result:
     latency_ms: dict[str, float]
     tag: Tag
     session: str = ""
+    cue_weights: dict[str, float] = field(default_factory=dict)
+    """The weight each single-frame cue had (``lostx``, ``layout``, ``appearance``); empty from a service that sends
+    none."""
+    disagrees: bool = False
+    """The frames' own answers did not keep to the sequence filter's line."""
 
     @property
     def localized(self) -> bool:

@@ -117,7 +117,7 @@ _RESULT: Schema = {
     "sequence_score": (_NUMBER.or_nil(), True), "speed": (_NUMBER.or_nil(), True),
     "window": (_UINT, True), "warming_up": (_BOOL, True),
     "margin": (_NUMBER.or_nil(), True), "heading": (_STR, True), "heading_confidence": (_NUMBER, True),
-    "latency_ms": (_MAP, True), **_TAG,
+    "cue_weights": (_MAP, False), "disagrees": (_BOOL, False), "latency_ms": (_MAP, True), **_TAG,
 }
 _CANDIDATE: Schema = {
     "index": (_UINT, True), "distance": (_NUMBER.or_nil(), True), "score": (_NUMBER.or_nil(), True),
@@ -322,6 +322,9 @@ def read_result(message: Mapping[str, Any]) -> Result:
     latency = f.value("latency_ms")
     if not all(isinstance(k, str) and is_number(v) for k, v in latency.items()):
         raise ProtocolError("bad_type", "latency_ms must map stage names to numbers")
+    cue_weights = f.value("cue_weights", {})
+    if not all(isinstance(k, str) and is_number(v) for k, v in cue_weights.items()):
+        raise ProtocolError("bad_type", "cue_weights must map cue names to numbers")
     position = f.value("position")
     if position is not None:
         if len(position) != 2 or not all(is_number(v) for v in position):
@@ -336,6 +339,7 @@ def read_result(message: Mapping[str, Any]) -> Result:
         window=f.value("window"), warming_up=f.value("warming_up"),
         margin=_opt_float(f.value("margin")),
         heading=f.value("heading"), heading_confidence=float(f.value("heading_confidence")),
+        cue_weights={k: float(v) for k, v in cue_weights.items()}, disagrees=bool(f.value("disagrees", False)),
         latency_ms={k: float(v) for k, v in latency.items()}, tag=read_tag(f), session=f.value("session", ""),
     )
 

@@ -52,7 +52,10 @@ def test_the_shared_scene_gives_the_frames_and_positions_of_its_csvs(shared, sid
 
 def test_a_dataset_root_and_a_download_layout_read_the_same_frames(shared, tmp_path):
     rear = open_traverse(shared / "scene-0523" / "rear")
-    from_root = open_traverse(shared, options=SourceOptions(channel="CAM_BACK"))  # the scene found by its images
+    # The dataset's root holds two scenes' images: it names them until one is chosen.
+    with pytest.raises(InputError, match=r"holds 2 scenes \(scene-0523, scene-0916\); choose one with --scene"):
+        open_traverse(shared, options=SourceOptions(channel="CAM_BACK"))
+    from_root = open_traverse(shared, options=SourceOptions(channel="CAM_BACK", scene="scene-0523"))
     assert from_root.names == rear.names and np.array_equal(from_root.positions, rear.positions)
     # A nuScenes download: v1.0-mini/ tables and samples/CAM_FRONT/<file>.
     download = tmp_path / "nuscenes"
@@ -106,7 +109,7 @@ def test_bad_nuscenes_input(shared, tmp_path):
     with pytest.raises(InputError, match=r"no scene 'scene-9999'; scenes: scene-0523, scene-0916"):
         open_traverse(shared, options=SourceOptions(scene="scene-9999"))
     with pytest.raises(InputError, match="none of the 41 images of this scene and channel is here"):
-        open_traverse(shared, options=SourceOptions(scene="scene-0916"))
+        open_traverse(shared, options=SourceOptions(scene="scene-0916", channel="CAM_FRONT_LEFT"))
     with pytest.raises(InputError, match="unknown nuScenes camera channel 'CAM_TOP'"):
         open_traverse(shared, options=SourceOptions(channel="CAM_TOP"))
     with pytest.raises(InputError, match="holds CAM_FRONT images, not CAM_BACK"):
@@ -123,7 +126,8 @@ def test_bad_nuscenes_input(shared, tmp_path):
 
 
 def test_map_build_takes_a_nuscenes_scene_and_declares_its_camera(shared, tmp_path):
-    proc = lostx("map", "build", shared, "--channel", "CAM_BACK", "--look-at", "--descriptor", "thumbnail",
+    proc = lostx("map", "build", shared, "--scene", "scene-0523", "--channel", "CAM_BACK", "--look-at",
+                 "--descriptor", "thumbnail",
                  "--out", tmp_path / "rear", "--quiet")
     assert proc.returncode == 0, proc.stderr
     assert "positions 15 m along the camera's heading" in proc.stdout

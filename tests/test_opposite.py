@@ -170,30 +170,41 @@ def test_a_vehicle_entering_the_map_from_outside_is_followed_once_its_trajectory
     assert (int(right[matchable].sum()), int(right[matchable][:10].sum())) == expected
 
 
-def test_the_layout_votes_on_the_heading_once_its_grid_has_gathered_the_road(scene, maps, mosaic):
-    """A frame's own cone of road fits the map's grids about as well turned as not: until its grid has gathered
-    ``heading.layout_after`` metres of the stream, a frame's heading vote is LoST-X's alone; after that, the layout's
-    counts beside it."""
-    from lostx.core.match.matcher import PlaceMatcher
+def test_a_cue_that_is_noise_on_this_map_earns_no_weight(scene, maps, mosaic, monkeypatch):
+    """Appearance replaced by random distances: its answers never keep to a trajectory, so it earns (near) no weight,
+    while the layout, which sees the places from the road's other end, earns most of it."""
+    from lostx.core.match import matcher as matching
 
-    frames = [dataclasses.replace(f, camera=None) for f in open_traverse(scene / "front").subset(range(8))]
-    votes = {}
-    for layout_vote in (0.0, Config().heading.layout_vote):
-        matcher = PlaceMatcher(maps["rear"], Config(heading=HeadingConfig(layout_vote=layout_vote)), mosaic)
-        described, votes[layout_vote] = [], []
-        for frame in frames:
-            described.append(matcher.describe(frame, compare=True))
-            votes[layout_vote].append(matcher.match_description(described[-1]).heading_evidence)
-    gathered = np.array([d.gathered for d in described])
-    early = gathered < Config().heading.layout_after
-    assert gathered[0] == 0.0 and early[:2].all() and not early[-3:].any(), gathered
-    w = Config().heading.layout_vote
-    alone, both = np.array(votes[0.0]), np.array(votes[w])
-    np.testing.assert_array_equal(alone[early], both[early])
-    # Later, each frame's vote is the weighted mean of LoST-X's and the layout's (a sign, here never 0).
-    layout = (both[~early] * (1 + w) - alone[~early]) / w
-    np.testing.assert_allclose(np.abs(layout), 1.0, atol=1e-9)
-    assert (alone[~early] != both[~early]).sum() >= 3
+    rng = np.random.default_rng(3)
+    monkeypatch.setattr(matching.AppearanceDistances, "__call__",
+                        lambda self, refs=None: rng.random(self.map.n_frames if refs is None else len(refs)))
+    queries = open_traverse(scene / "front", options=LOOK_AT)
+    estimates = _run(maps["rear"], queries, mosaic, declared=False)
+    settled = estimates[15:]
+    assert max(e.cue_weights.get("appearance", 0.0) for e in settled) < 0.1
+    assert min(e.cue_weights.get("layout", 0.0) for e in settled) > 0.7
+
+
+@pytest.mark.parametrize("yaw, sideways", [(90.0, True), (-110.0, True), (30.0, False)])
+def test_a_camera_looking_sideways_keeps_its_motion_and_the_layout_steps_aside(scene, maps, mosaic, yaw, sideways):
+    """The front frames as if from a camera mounted at ``yaw`` degrees: progress is measured along the vehicle's travel
+    whatever the mounting, so the sequence still lines the frames up with the map; the layout, whose other end of a
+    stretch is across the road for a camera looking sideways, steps aside and says why."""
+    from lostx.core.match.matcher import LayoutWarning, PlaceMatcher
+
+    traverse = open_traverse(scene / "front", options=LOOK_AT).subset(range(10))
+    frames = [dataclasses.replace(f, camera=None, geometry=dataclasses.replace(f.geometry, yaw=yaw)) for f in traverse]
+    matcher = PlaceMatcher(maps["rear"], Config(), mosaic)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        described = [matcher.describe(f, appearance=matcher.appearance_cue, compare=True) for f in frames]
+    driven = np.hypot(*np.diff(np.stack([f.odometry for f in frames])[:, :2], axis=0).T).sum()
+    assert described[-1].progress == pytest.approx(driven, rel=0.02)  # forwards, along the vehicle
+    assert all(d.layout is None for d in described) == sideways
+    assert any("looks sideways" in str(w.message) for w in caught if w.category is LayoutWarning) == sideways
+    assert ("looks sideways" in (matcher.layout_off or "")) == sideways
+    cues = matcher.match_description(described[-1]).opposite.cues.present()
+    assert ("layout" in cues) != sideways and "appearance" in cues
 
 
 def test_a_same_direction_query_reports_same(scene, mosaic, tmp_path):

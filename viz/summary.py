@@ -43,6 +43,9 @@ def heading_text(est: Estimate) -> str:
     return f"{est.heading} ({100 * est.heading_confidence:.0f} % sure)"
 
 
+CUE_NAMES = {"lostx": "LoST-X", "layout": "layout", "appearance": "appearance"}
+
+
 def status_markdown(frame: Frame, est: Estimate, refmap: ReferenceMap) -> str:
     state = "**localized**" if est.state == "localized" else "**not localized**"
     if est.warming_up:
@@ -58,6 +61,12 @@ def status_markdown(frame: Frame, est: Estimate, refmap: ReferenceMap) -> str:
                      f"reference frames per frame · window {est.window}")
     else:
         lines.append(f"score **{fmt(est.score)}** (single-frame verification, lower is better) · sequence filter off")
+    if est.cue_weights:
+        cues = " · ".join(f"{CUE_NAMES.get(k, k)} {v:.2f}" for k, v in est.cue_weights.items())
+        lines.append(f"cues (weights earned by agreeing with the motion): {cues}"
+                     + (" · **the motion and the matches disagree**" if est.disagrees else ""))
+    elif est.disagrees:
+        lines.append("**the motion and the matches disagree**")
     if est.latency_ms:
         parts = " · ".join(f"{k} {v:.0f}" for k, v in est.latency_ms.items() if k != "total")
         lines.append(f"latency **{fmt(est.latency_ms.get('total'))} ms**: {parts}")

@@ -146,6 +146,15 @@ class Estimate:
     verification, its route index running against the map's when it drives the other way)."""
     heading_confidence: float = 1.0
     """Probability, in [0.5, 1], that ``heading`` is right."""
+    cue_weights: dict[str, float] = field(default_factory=dict)
+    """The weight each single-frame cue had in the answer (``lostx``, ``layout``, ``appearance``; unit length), what it
+    earned on this stream by agreeing with the motion; a cue missing took no part (the layout off, a map without
+    appearance descriptors) or has not earned any. Empty where the method has one score."""
+    disagrees: bool = False
+    """The motion and the matches disagree: too few of the recent frames' own answers kept to the sequence filter's
+    line (a bend the line cuts, a map that does not hold the road, a misled cue; or single frames that are noise the
+    line rightly ignores: on the two nuScenes scenes answering the frame's own match instead changed no figure by more
+    than a query, and on Nordland it lost 10 of 100)."""
     latency_ms: dict[str, float] = field(default_factory=dict)
     """Milliseconds per stage: network, descriptor, search, verify; with the sequence filter also
     costs (the frame's normalised cost for every reference: O(map size), like the search),
@@ -181,6 +190,8 @@ class Estimate:
             "margin": None if self.margin is None else _num(self.margin),
             "heading": self.heading,
             "heading_confidence": float(self.heading_confidence),
+            "cue_weights": {k: float(v) for k, v in self.cue_weights.items()},
+            "disagrees": bool(self.disagrees),
             "latency_ms": {k: float(v) for k, v in self.latency_ms.items()},
         }
 

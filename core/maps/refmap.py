@@ -54,6 +54,7 @@ from ..frame import Heading
 from ..geometry import CameraGeometry
 from ..layout.compare import GridStack
 from ..layout.grid import LayoutGrid, grid_shape, holds_both, stored_half, unpack, unpack_levels
+from ..motion.odometer import forwards
 from .format import BACKBONE_IDENTITY, MAP_FORMAT, READABLE_VERSIONS, MapKind, backbone_dict, backbone_identity
 from .index import ApproximateIndex, file_sha256
 
@@ -229,9 +230,11 @@ class ReferenceMap:
 
     @property
     def progress_sign(self) -> int:
-        """+1 where the map's camera moved the way it looks, -1 where it moved backwards (a rear camera)."""
+        """+1 where the map's vehicle drove forwards (whichever way its camera looks), -1 where it reversed."""
         steps = self._arrays.get("steps")
-        return -1 if steps is not None and float(np.sum(np.asarray(steps)[1:, 0])) < 0 else 1
+        geometry = self.camera_geometry
+        yaw = geometry.yaw if geometry is not None else 0.0
+        return -1 if steps is not None and float(np.sum(forwards(np.asarray(steps)[1:], yaw))) < 0 else 1
 
     def check_backbone(self, info: BackboneInfo) -> None:
         """Refuse queries described by another backbone than the one that built the map: another name, model

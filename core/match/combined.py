@@ -1,13 +1,17 @@
-"""LoST-X and the layout together: each cue's score of any map frame standardised over the map, then added.
+"""The single-frame cues and their combination: each cue's score of any map frame standardised over the map,
+weighted, added.
 
-    s(r) = (x_L(r) - mean x_L) / std x_L  -  w (y(r) - mean y) / std y
+    s(r) = sum_c w_c z_c(r),    z_c(r) = (x_c(r) - mean x_c) / std x_c,    sum_c w_c^2 = 1
 
-x_L is LoST-X's single-frame score (lower is better: the verification score of the verified candidates, the
-descriptor distance times their median factor elsewhere, :class:`MapScores`), y the layout's similarity
-(higher is better, :mod:`lostx.core.layout.compare`) under the same heading, w ``layout.weight``. The means and
-standard deviations are a frame's own over the map (every map frame where the map is small enough to compare
-them all, else an even sample of it), so that neither cue's scale decides: what each says is how far a map
-frame stands out from the rest of the map. Lower is better, like every single-frame score.
+The cues (:class:`Cues`): LoST-X (x: its single-frame score, lower is better: the verification score of the verified
+candidates, the descriptor distance times their median factor elsewhere, :class:`MapScores`), the layout (its
+similarity, higher is better, negated: :mod:`lostx.core.layout.compare`) under the same heading, and appearance (the
+GeM cosine distance of the same network's pooled features; it cannot tell the headings apart). The means and standard
+deviations are a frame's own over the map (every map frame where the map is small enough to compare them all, else an
+even sample of it), so that no cue's scale decides: what each says is how far a map frame stands out from the rest of
+the map. The weights w_c >= 0 are what each cue earned on this stream (:mod:`lostx.core.route.agreement`), scaled to
+unit length, so that the combined score of independent cues keeps a unit spread whatever the weights. Lower is
+better, like every single-frame score.
 """
 
 from __future__ import annotations
@@ -20,6 +24,7 @@ import numpy as np
 
 from ..layout.compare import Alignment, GridStack, aligned, refined, similarities
 from ..layout.grid import Gathering, LayoutGrid, as_grid
+from ..config import CUES
 from .scores import MapScores
 
 EVERY_FRAME_MAX = 20000
@@ -183,73 +188,108 @@ def _moments(values: np.ndarray) -> tuple[float, float]:
     return float(finite.mean()), float(max(finite.std(), 1e-9))
 
 
+class CueScores(Protocol):
+    """One cue's score of any map frame (:class:`MapScores`, :class:`LayoutScores`)."""
+
+    n_frames: int
+
+    def every(self) -> np.ndarray: ...
+
+    def at(self, refs: np.ndarray) -> np.ndarray: ...
+
+
+@dataclass
+class Cues:
+    """One frame's cues under one heading: LoST-X's scores, and the layout's and appearance's where they took part."""
+
+    lostx: MapScores
+    layout: LayoutScores | None = None
+    appearance: MapScores | None = None
+
+    def present(self) -> dict[str, CueScores]:
+        """The cues that took part, by name, in :data:`CUES` order."""
+        found = {"lostx": self.lostx, "layout": self.layout, "appearance": self.appearance}
+        return {name: scores for name, scores in found.items() if scores is not None}
+
+    def lower_is_better(self, name: str) -> bool:
+        return name != "layout"
+
+
 @dataclass
 class CombinedScores:
     """The combined score of any map frame (see the module docstring); a :class:`MapScores` in use."""
 
-    lost: MapScores
-    layout: LayoutScores
-    weight: float
+    cues: Cues
+    weights: dict[str, float]
+    """Each cue's weight (missing or 0: it takes no part); scaled to unit length here."""
     removed: slice | None = None
     removed_score: float = np.nan
 
     def __post_init__(self) -> None:
-        n = self.lost.n_frames
+        present = self.cues.present()
+        raw = {name: max(float(self.weights.get(name, 0.0)), 0.0) for name in present}
+        norm = float(np.sqrt(sum(w * w for w in raw.values())))
+        if norm == 0.0:  # nothing earned yet: LoST-X, the method the others join
+            raw, norm = {"lostx": 1.0}, 1.0
+        self.used = {name: w / norm for name, w in raw.items() if w > 0.0}
+        """The weights in use (unit length), by cue."""
+        n = self.cues.lostx.n_frames
         sample = sampled(n)
-        keep = np.ones(len(sample), dtype=bool)
-        if self.lost.removed is not None:
-            keep = (sample < self.lost.removed.start) | (sample >= self.lost.removed.stop)
-        sample = sample[keep]
-        # A small map's LoST-X scores of every frame, computed once for the moments and every look-up.
-        self._lost_every = self.lost.every() if n <= EVERY_FRAME_MAX else None
-        self._lost_moments = _moments(self._lost_every[sample] if self._lost_every is not None else self.lost.at(sample))
-        layout = self.layout.at(sample)
-        self._layout_moments = _moments(layout)
-        self._floor = float(np.min(layout[np.isfinite(layout)])) if np.isfinite(layout).any() else 0.0
+        lost = self.cues.lostx
+        if lost.removed is not None:
+            sample = sample[(sample < lost.removed.start) | (sample >= lost.removed.stop)]
+        self._every: dict[str, np.ndarray] = {}
+        self._moments: dict[str, tuple[float, float]] = {}
+        self._floors: dict[str, float] = {}
+        for name in self.used:
+            scores = present[name]
+            if n <= EVERY_FRAME_MAX:
+                # A small map's scores of every frame, computed once for the moments and every look-up.
+                self._every[name] = np.asarray(scores.every(), dtype=np.float64)
+                values = self._every[name][sample]
+            else:
+                values = np.asarray(scores.at(sample), dtype=np.float64)
+            self._moments[name] = _moments(values)
+            finite = values[np.isfinite(values)]
+            # A map frame a cue cannot score (the layout: too few cells seen by both) counts as its worst.
+            worst = (finite.max() if self.cues.lower_is_better(name) else finite.min()) if len(finite) else 0.0
+            self._floors[name] = float(worst)
 
     @property
     def n_frames(self) -> int:
-        return self.lost.n_frames
+        return self.cues.lostx.n_frames
 
     @property
     def known(self) -> np.ndarray:
-        return self.lost.known
+        return self.cues.lostx.known
 
-    def _combine(self, lost: np.ndarray, layout: np.ndarray) -> np.ndarray:
-        (lm, ls), (ym, ys) = self._lost_moments, self._layout_moments
-        # A map frame the layout cannot be compared with (too few cells seen by both) counts as the least similar.
-        layout = np.where(np.isfinite(layout), layout, self._floor)
-        return (lost - lm) / ls - self.weight * (layout - ym) / ys
+    def _standardised(self, name: str, values: np.ndarray) -> np.ndarray:
+        mean, std = self._moments[name]
+        values = np.where(np.isfinite(values), values, self._floors[name])
+        z = (values - mean) / std
+        return z if self.cues.lower_is_better(name) else -z
+
+    def standardised(self, name: str, refs: np.ndarray | None = None) -> np.ndarray:
+        """z_c of cue ``name`` (one in use) at ``refs`` (None: every map frame), lower is better."""
+        if refs is None:
+            values = self._every.get(name)
+            if values is None:
+                values = self.cues.present()[name].every()
+        else:
+            refs = np.asarray(refs, dtype=np.int64)
+            values = self._every[name][refs] if name in self._every else self.cues.present()[name].at(refs)
+        return self._standardised(name, np.asarray(values, dtype=np.float64))
 
     def every(self) -> np.ndarray:
-        lost = self._lost_every if self._lost_every is not None else self.lost.every()
-        return self._removed(np.arange(self.n_frames), self._combine(lost, self.layout.every()))
+        total = sum(w * self.standardised(name) for name, w in self.used.items())
+        return self._removed(np.arange(self.n_frames), np.asarray(total, dtype=np.float64))
 
     def at(self, refs: np.ndarray) -> np.ndarray:
         refs = np.asarray(refs, dtype=np.int64)
-        lost = self._lost_every[refs] if self._lost_every is not None else self.lost.at(refs)
-        return self._removed(refs, self._combine(lost, self.layout.at(refs)))
+        total = sum(w * self.standardised(name, refs) for name, w in self.used.items())
+        return self._removed(refs, np.asarray(total, dtype=np.float64))
 
     def _removed(self, refs: np.ndarray, out: np.ndarray) -> np.ndarray:
         if self.removed is not None:
             out[(refs >= self.removed.start) & (refs < self.removed.stop)] = self.removed_score
         return out
-
-
-def layout_vote(comparison: LayoutComparison) -> float:
-    """The layout's vote on the heading (> 0 favours opposite): under which heading the frame's best map frame stands
-    further above its other map frames, in standard deviations, in the scores that heading's answers are ranked by
-    (:data:`SAME`: the grid as it lies against the map camera's grids; :data:`OPPOSITE`: turned, against the grids
-    as each stretch's other end sees it). Each heading's similarities are judged against their own spread, since
-    comparing grids as they are and turned differs for every pair of frames, not only the true one (both cameras
-    see road straight ahead). Judged instead against the map camera's grids alone, turned and not, the vote leaned
-    to one heading by how the query's camera moves against its view (towards it or away), whatever the truth."""
-    same, opposite = (comparison.heading(row).at(sampled(comparison.maps.n)) for row in (SAME, OPPOSITE))
-    return float(np.sign(lead(opposite) - lead(same)))
-
-
-def lead(values: np.ndarray) -> float:
-    """How far the best of a frame's layout similarities ``values`` stands above the rest, in their standard
-    deviations (0 where fewer than two are finite)."""
-    finite = values[np.isfinite(values)]
-    return float((finite.max() - finite.mean()) / max(finite.std(), 1e-9)) if len(finite) > 1 else 0.0

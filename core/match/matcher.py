@@ -4,6 +4,7 @@ the frames have it (the two cues combined, :mod:`lostx.core.match.combined`)."""
 from __future__ import annotations
 
 import dataclasses
+import math
 import os
 import time
 import warnings
@@ -15,6 +16,7 @@ import numpy as np
 from ..backbones import Backbone, load_backbone
 from ..config import Config, LostConfig, looks_up_costs
 from ..describe.camera import Geometry
+from ..geometry import CameraGeometry
 from ..describe.describer import LostDescriber, TrailingMeans
 from ..describe.keypoints import KeypointEvidence
 from ..describe.lost import RunningStandardiser
@@ -27,10 +29,10 @@ from ..layout.describer import FramePlacer, LiveLayout
 from ..layout.grid import Gathering, LayoutGrid
 from ..maps.refmap import ReferenceMap
 from . import comparers
-from .combined import EVERY_FRAME_MAX, CombinedScores, Comparer, LayoutComparison, LayoutScores, layout_vote
+from .combined import EVERY_FRAME_MAX, CombinedScores, Comparer, Cues, LayoutComparison, LayoutScores
 from .comparers import ComparisonProcess, ComparisonWarning, ThreadComparer
 from .scores import MapScores
-from .search import CandidateSearch, QueryDistances
+from .search import CandidateSearch, QueryDistances, cosine_distances
 from .verify import Correspondences, Verification, verify
 
 
@@ -96,6 +98,11 @@ class MatchResult:
     layout: LayoutScores | None = None
     """The layout's similarity with any map frame under this heading (its query grid turned for ``opposite``),
     where the layout took part."""
+    cues: Cues | None = None
+    """Each cue's scores of any map frame under this heading (LoST-X's, the layout's, appearance's), before they are
+    combined (:func:`combined_result`); None for a method with one score."""
+    weights: dict[str, float] | None = None
+    """Where this is the cues' combined answer: the weight each cue had (unit length)."""
 
     @property
     def best(self) -> int:
@@ -121,10 +128,9 @@ class FrameMatch:
     same: MatchResult
     opposite: MatchResult
     heading_evidence: float = 0.0
-    """This frame's vote on the heading, in [-1, 1]: the mean over the candidates scored under both
-    hypotheses of sign(score same - score opposite) (and, with the layout, the weighted mean of that vote and the
-    layout's, once the frame's grid has gathered ``heading.layout_after`` metres). Positive favours ``opposite``; 0 is
-    no evidence (nothing verified, or a method that cannot tell)."""
+    """This frame's vote on the heading, in [-1, 1]: the mean over the candidates verified under both
+    hypotheses of sign(score same - score opposite) (a flipped thumbnail's, for thumbnails). Positive favours
+    ``opposite``; 0 is no evidence (nothing verified, or a method that cannot tell)."""
     progress: float | None = None
     """Metres the stream has advanced along its camera's axis at this frame, where its motion is known."""
 
@@ -155,6 +161,18 @@ def margin(candidates: np.ndarray, scores: np.ndarray, exclusion: int) -> float:
     far = np.abs(candidates - candidates[0]) > exclusion
     alt = scores[far][np.isfinite(scores[far])]
     return float(max(alt.min() - scores[0], 0.0)) if len(alt) else float("inf")
+
+
+SIDEWAYS_DEG = 45.0
+"""A camera mounted further than this from its vehicle's axis (ahead or behind) looks sideways: the layout steps
+aside for it."""
+
+
+def looks_sideways(geometry: CameraGeometry) -> bool:
+    """Whether a camera is mounted more than :data:`SIDEWAYS_DEG` from its vehicle's axis, ahead or behind. Its
+    view of a place from the road's other end is from the road's other side, which a grid turned 180 degrees about
+    its centre does not give."""
+    return abs(math.sin(math.radians(geometry.yaw))) > math.sin(math.radians(SIDEWAYS_DEG))
 
 
 class LayoutWarning(UserWarning):
@@ -247,7 +265,6 @@ class PlaceMatcher:
         self._live = LiveLayout(self.layout_config)
         weights = np.ones(len(CHANNELS))
         weights[CHANNELS.index("vehicle")] = cfg.vehicle_weight
-        weights[CHANNELS.index("building")] = cfg.building_weight
         self._layout_weights = weights
         self._layout_shifts = int(round(cfg.across_shift / settings.cell))
         if not self.map.stores_other_ends:
@@ -279,9 +296,10 @@ class PlaceMatcher:
         (:class:`StateError` where visual odometry places them)."""
         lost = isinstance(self.describer, LostDescriber)
         layout = self._placer is not None and self._live is not None and self.layout_off is None
+        placing = self._placer is not None and self._live is not None
         return {"normaliser": self.normaliser.state() if lost else None, "means": self.means.state() if lost else None,
                 "layout_off": self.layout_off,
-                "placer": self._placer.state() if layout else None,  # type: ignore[union-attr]
+                "placer": self._placer.state() if placing else None,  # type: ignore[union-attr]
                 "live": self._live.state() if layout else None}  # type: ignore[union-attr]
 
     def restore(self, state: dict) -> None:
@@ -294,7 +312,8 @@ class PlaceMatcher:
         self.layout_off = state["layout_off"]
         if state.get("placer") is not None and self._placer is not None and self._live is not None:
             self._placer.restore(state["placer"])
-            self._live.restore(state["live"])
+            if state.get("live") is not None:
+                self._live.restore(state["live"])
 
     def match(self, frame: Frame | np.ndarray, camera: Camera | None = None) -> FrameMatch:
         """Match one frame (or a bare image from the ``camera`` it declares) under both heading hypotheses."""
@@ -303,12 +322,18 @@ class PlaceMatcher:
         image = check_frame(frame.image)
         if isinstance(self.describer, ThumbnailDescriber):
             return self._match_thumbnail(image)
-        return self.match_description(self.describe(frame, compare=True))
+        return self.match_description(self.describe(frame, appearance=self.appearance_cue, compare=True))
+
+    @property
+    def appearance_cue(self) -> bool:
+        """Whether appearance takes part as a cue: the map holds its descriptors and ``cues.appearance`` is on."""
+        return (self.config.cues.appearance and self.config.verify.enabled and self.map.kind == "lost"
+                and self.map.appearance is not None)
 
     def describe(self, frame: Frame, appearance: bool = False, compare: bool = False) -> QueryDescription:
         """Run the network on a LoST query frame, and place it on the road with its layout where that is on
         (the expensive, cacheable half of :meth:`match`, in stream order); ``appearance`` also pools the GeM
-        descriptor of the appearance baseline. ``compare``: the frame is matched next; its layout's comparison with
+        descriptor of the appearance cue. ``compare``: the frame is matched next; its layout's comparison with
         the map starts as soon as its grid is known, beside its descriptor."""
         describer = self.describer
         assert isinstance(describer, LostDescriber)
@@ -356,10 +381,16 @@ class PlaceMatcher:
         if placed is None:
             self._layout_unavailable("the frames' motion is unknown (no odometry, and visual odometry is off)")
             return None, None
-        gathering = self._live.add(placed)
         timings["motion"] = t1 - t0
+        progress = placed.progress if placed.known else None
+        if looks_sideways(frame.geometry):
+            # The motion still lines the frames up with the map (progress is along the vehicle's travel).
+            self._layout_unavailable(f"the camera looks sideways ({frame.geometry.yaw:g} degrees from the vehicle's "
+                                     f"axis): the stretches its grids see are not the road's two ends")
+            return None, progress
+        gathering = self._live.add(placed)
         timings["layout"] = time.perf_counter() - t1
-        return gathering, placed.progress if placed.known else None
+        return gathering, progress
 
     def _match_thumbnail(self, image: np.ndarray) -> FrameMatch:
         t0 = time.perf_counter()
@@ -405,9 +436,9 @@ class PlaceMatcher:
         t0 = time.perf_counter()
         evidence = self.last_evidence = self.map.query_evidence(query.evidence)
         vector = self.normaliser(query.descriptor)
-        votes = query.gathered is None or query.gathered >= self.config.heading.layout_after
+        appearance = query.appearance if self.appearance_cue else None
         match = self._search_and_verify(vector, evidence, query.labels, {**query.timings}, t0,
-                                        layout=query.layout, layout_votes=votes)
+                                        layout=query.layout, appearance=appearance)
         match.progress = query.progress
         return match
 
@@ -425,13 +456,16 @@ class PlaceMatcher:
             flipped = query.reshape(self.describer.size[1], -1)[:, ::-1].ravel()
             return self._thumbnail_match({"same": query, "opposite": flipped}, t0, removed)
         layout = self.map.layout_grid(index) if self._live is not None else None
+        appearance = self.map.appearance[index] if self.appearance_cue else None  # type: ignore[index]
         return self._search_and_verify(query, self.map.evidence([index]), self.map.labels(index), {}, t0, removed,
-                                       layout)
+                                       layout, appearance)
 
     def _search_and_verify(self, vector: np.ndarray, evidence: KeypointEvidence, labels: np.ndarray,
                            timings: dict[str, float], t0: float, removed: slice | None = None,
-                           layout: LayoutGrid | Gathering | None = None, layout_votes: bool = True) -> FrameMatch:
-        """``layout_votes``: whether the layout's heading vote counts beside LoST-X's (its grid gathered far enough)."""
+                           layout: LayoutGrid | Gathering | None = None,
+                           appearance: np.ndarray | None = None) -> FrameMatch:
+        """LoST-X's answer under each heading, with the frame's cues attached (its layout's comparison and its
+        appearance's distances, where they take part) for the localizer to combine with the weights they earned."""
         cfg = self.config.verify
         comparison = self._comparison(layout) if cfg.enabled else None
         distance_of = QueryDistances(self.search, vector)
@@ -452,11 +486,15 @@ class PlaceMatcher:
             density=cfg.density_filter,
         )
         timings["verify"] = time.perf_counter() - t1
+        looks = None if appearance is None else without(MapScores(AppearanceDistances(self.map, appearance),
+                                                                  self.map.n_frames), removed)
         by_heading = {"same": result.scores, "opposite": result.mirror_scores}
         answers = {}
-        for heading, scores in by_heading.items():
+        for row, (heading, scores) in enumerate(by_heading.items()):
             rank = np.lexsort((np.arange(len(shortlist)), scores))
             candidates, ranked = shortlist[rank], scores[rank]
+            lost = map_scores(distance_of, self.map.n_frames, shortlist, distances, scores, cfg.scoring, removed)
+            layout_scores = None if comparison is None else comparison.heading(row)
             answers[heading] = MatchResult(
                 candidates=candidates,
                 distances=distances[rank],
@@ -467,20 +505,15 @@ class PlaceMatcher:
                 shortlist=shortlist,
                 query_labels=labels,
                 timings=timings,
-                map_scores=map_scores(distance_of, self.map.n_frames, shortlist, distances, scores, cfg.scoring,
-                                      removed),
+                map_scores=lost,
                 nearest=nearest,
                 heading=heading,  # type: ignore[arg-type]
+                layout=layout_scores,
+                cues=Cues(lost, layout_scores, looks),
             )
-        vote = heading_vote(result.scores, result.mirror_scores)
         if comparison is not None:
-            t2 = time.perf_counter()
-            answers, vote = self._with_layout(answers, comparison, distance_of, result, vote, removed, layout_votes)
-            # The comparison's own time (on its thread, beside the search and verification), and what combining the
-            # two cues added to the frame's, waiting for it included.
             timings["layout compare"] = comparison.seconds
-            timings["combine"] = time.perf_counter() - t2
-        return FrameMatch(answers["same"], answers["opposite"], vote)
+        return FrameMatch(answers["same"], answers["opposite"], heading_vote(result.scores, result.mirror_scores))
 
     def _comparer(self, comparison: LayoutComparison) -> Comparer:
         """Where this process's layout comparisons run beside LoST-X (:mod:`.comparers`): for the matcher's life, a
@@ -519,34 +552,50 @@ class PlaceMatcher:
             return started[1]
         return self._layout_comparison(grid)
 
-    def _with_layout(self, answers: dict[str, MatchResult], comparison: LayoutComparison, distance_of: QueryDistances,
-                     verified: Verification, lost_vote: float, removed: slice | None,
-                     layout_votes: bool = True) -> tuple[dict[str, MatchResult], float]:
-        """Each heading's answer ranked by LoST-X and the layout combined, and the two cues' heading votes."""
-        cfg = self.config
-        out = {}
-        for heading, lost in answers.items():
-            layout = comparison.heading(HEADINGS.index(heading))
-            combined = without(CombinedScores(lost.map_scores, layout, cfg.layout.weight), removed)  # type: ignore[arg-type]
-            n = self.map.n_frames
-            pool = np.arange(n) if n <= EVERY_FRAME_MAX else np.union1d(lost.nearest, lost.candidates)  # type: ignore[arg-type]
-            if removed is not None:
-                pool = pool[(pool < removed.start) | (pool >= removed.stop)]
-            scores = combined.at(pool)
-            order = np.lexsort((pool, scores))[: cfg.verify.top_k]
-            candidates, ranked = pool[order], scores[order]
-            rows = {int(r): i for i, r in enumerate(lost.shortlist)}  # type: ignore[union-attr]
-            counts = verified.n_matches
-            out[heading] = dataclasses.replace(
-                lost, candidates=candidates, distances=distance_of(candidates), scores=ranked,
-                confidence=margin(candidates, ranked, cfg.verify.uniqueness_exclusion),
-                n_matches=np.array([counts[rows[int(c)]] if int(c) in rows else 0 for c in candidates]),
-                map_scores=combined, layout=layout)
-        if not layout_votes:
-            return out, lost_vote
-        weight = cfg.heading.layout_vote
-        vote = (lost_vote + weight * layout_vote(comparison)) / (1.0 + weight)
-        return out, vote
+
+class AppearanceDistances:
+    """The appearance cue's cosine distances of one query's GeM descriptor to the map frames asked for (None: every
+    one), the whole map's computed at most once."""
+
+    def __init__(self, refmap: ReferenceMap, query: np.ndarray) -> None:
+        self.map, self.query = refmap, np.asarray(query, dtype=np.float32)
+        self._every: np.ndarray | None = None
+
+    def __call__(self, refs: np.ndarray | None = None) -> np.ndarray:
+        stored = self.map.appearance
+        assert stored is not None
+        if self._every is None and refs is None:
+            self._every = cosine_distances(self.query, stored)
+        if self._every is not None:
+            return self._every if refs is None else self._every[refs]
+        return cosine_distances(self.query, stored[np.asarray(refs, dtype=np.int64)])
+
+
+def combined_result(result: MatchResult, weights: dict[str, float], top_k: int, exclusion: int) -> MatchResult:
+    """``result`` (LoST-X's answer under one heading, its cues attached) ranked by its cues combined with ``weights``
+    (:class:`CombinedScores`): the ``top_k`` best map frames of the combined score (every map frame where the map is
+    small enough to score them all, else the search's nearest and LoST-X's candidates), its margin (the combined
+    score's lead, in the cues' standard deviations) as the confidence. A result with one cue is returned as it is."""
+    cues = result.cues
+    if cues is None or len(cues.present()) < 2:
+        return result
+    lost = cues.lostx
+    combined = without(CombinedScores(cues, weights), lost.removed)
+    if set(combined.used) == {"lostx"}:
+        return dataclasses.replace(result, weights=dict(combined.used))
+    n = lost.n_frames
+    pool = np.arange(n) if n <= EVERY_FRAME_MAX else np.union1d(result.nearest, result.candidates)  # type: ignore[arg-type]
+    if lost.removed is not None:
+        pool = pool[(pool < lost.removed.start) | (pool >= lost.removed.stop)]
+    scores = combined.at(pool)
+    order = np.lexsort((pool, scores))[:top_k]
+    candidates, ranked = pool[order], scores[order]
+    counts = {int(r): int(c) for r, c in zip(result.candidates, result.n_matches)} if result.n_matches is not None else {}
+    return dataclasses.replace(
+        result, candidates=candidates, distances=lost.distances(candidates), scores=ranked,
+        confidence=margin(candidates, ranked, exclusion),
+        n_matches=np.array([counts.get(int(c), 0) for c in candidates]), map_scores=combined,
+        weights=dict(combined.used))
 
 
 def _around(n: int, index: int, radius: int) -> slice:

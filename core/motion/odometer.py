@@ -7,10 +7,11 @@ Each frame's camera *ground frame* (on the road under the camera, along its leve
   vehicle, where frames carry it;
 - else from visual odometry on the frames themselves (:mod:`.visual`), metric through the camera's height.
 
-*Progress* is the distance travelled along the camera's own axis, signed: a camera moving the way it looks
-advances, one moving backwards (a rear camera on a vehicle driving forwards) goes back. Two cameras viewing
-a road the same way progress together along it; viewing it from opposite ends, against each other. The
-sequence filter lines frames up with a map by it (:mod:`lostx.core.route.sequence`).
+*Progress* is the distance travelled along the vehicle's own axis, signed: a vehicle driving forwards advances,
+one reversing goes back, whichever way its camera is mounted (a camera looking sideways progresses as much as one
+looking ahead). Two vehicles driving a road the same way progress together along it; driving it the other way,
+against each other. The sequence filter lines frames up with a map by it (:mod:`lostx.core.route.sequence`), and
+the cameras' mountings tell how that direction of travel goes with the heading (:func:`mounting`).
 """
 
 from __future__ import annotations
@@ -35,7 +36,7 @@ class Placement:
     travelled: float
     """Metres travelled since the stream's first frame (unsigned)."""
     progress: float
-    """Metres advanced along the camera's own axis since the first frame (signed; see the module docstring)."""
+    """Metres advanced along the vehicle's own axis since the first frame (signed; see the module docstring)."""
     step: np.ndarray
     """(3,) this frame's ground frame in the previous frame's (zeros for the first frame)."""
     source: str
@@ -75,17 +76,17 @@ class Odometer:
             vehicle = np.asarray(frame.odometry, dtype=np.float64)
             pose = camera_ground_pose(vehicle, geometry)
             step = np.zeros(3) if self._last is None else relative(self._last.pose, pose)
-            return self._advance(pose, step, "odometry")
+            return self._advance(pose, step, "odometry", geometry)
         if self.config.source == "odometry":
             return None
         step = self._visual_step(frame, geometry, ground, movers)
         if self._last is None or step is None:
             # How far later frames are from this one is known only once visual odometry has measured a step.
             return self._advance(np.zeros(3) if self._last is None else self._last.pose, np.zeros(3), "visual",
-                                 self._scale_known)
+                                 geometry, self._scale_known)
         self._scale_known |= step.measured
         motion = np.asarray(step.motion, dtype=np.float64)
-        return self._advance(compose(self._last.pose, motion), motion, "visual", self._scale_known)
+        return self._advance(compose(self._last.pose, motion), motion, "visual", geometry, self._scale_known)
 
     def _visual_step(self, frame: Frame, geometry: CameraGeometry, ground: np.ndarray | None,
                      movers: np.ndarray | None):  # noqa: ANN202 (visual.Step | None)
@@ -118,9 +119,27 @@ class Odometer:
         self._scale_known = bool(state["scale_known"])
         self._pending_visual = state.get("visual")
 
-    def _advance(self, pose: np.ndarray, step: np.ndarray, source: str, known: bool = True) -> Placement:
+    def _advance(self, pose: np.ndarray, step: np.ndarray, source: str, geometry: CameraGeometry,
+                 known: bool = True) -> Placement:
         last = self._last
         travelled = 0.0 if last is None else last.travelled + float(np.hypot(step[0], step[1]))
-        progress = 0.0 if last is None else last.progress + float(step[0])
+        progress = 0.0 if last is None else last.progress + forwards(step, geometry.yaw)
         self._last = Placement(pose, travelled, progress, step, source, known)
         return self._last
+
+
+def forwards(step: np.ndarray, yaw_deg: float | np.ndarray) -> float | np.ndarray:
+    """Metres a step (in the camera's ground frame: x along its level axis, y to its left) moves the vehicle along
+    its own axis, the camera mounted ``yaw_deg`` anticlockwise from it: the step turned into the vehicle's frame."""
+    step = np.asarray(step, dtype=np.float64)
+    yaw = np.radians(yaw_deg)
+    return np.cos(yaw) * step[..., 0] - np.sin(yaw) * step[..., 1]
+
+
+def mounting(query_yaw_deg: float, map_yaw_deg: float) -> int:
+    """How the direction of travel goes with the heading for two cameras mounted on their vehicles at these yaws:
+    +1 where they face their vehicles' same way (a heading ``same`` then means driving the map's way), -1 the
+    opposite way (a front camera against a rear-camera map: ``same`` means driving the other way), 0 where they are
+    mounted within 30 degrees of square to each other, where the heading says nothing about the travel."""
+    c = float(np.cos(np.radians(query_yaw_deg - map_yaw_deg)))
+    return 0 if abs(c) < 0.5 else (1 if c > 0 else -1)

@@ -31,8 +31,8 @@ if TYPE_CHECKING:
 
 COLUMNS = ["query_index", "query_file", "match_index", "match_file", "score", "confidence", "candidates",
            "distance", "correspondences"]
-SEQUENCE_COLUMNS = ["single_match_index", "state", "speed"]
-HEADING_COLUMNS = ["heading", "heading_confidence"]
+SEQUENCE_COLUMNS = ["single_match_index", "state", "speed", "disagrees"]
+HEADING_COLUMNS = ["heading", "heading_confidence", "cue_weights"]
 POSITION_COLUMNS = ["x", "y"]
 """The map position of ``match_index``, where the map has positions."""
 
@@ -167,6 +167,7 @@ def csv_row(name: str, estimate: Estimate, refmap: ReferenceMap, sequence: bool)
     }
     row["heading"] = estimate.heading
     row["heading_confidence"] = f"{estimate.heading_confidence:.4f}"
+    row["cue_weights"] = " ".join(f"{name}={weight:.3f}" for name, weight in estimate.cue_weights.items())
     if estimate.position is not None:
         # Exactly as the map holds them: map coordinates may be large (UTM) or fine (degrees).
         row["x"], row["y"] = (float(v) for v in estimate.position)
@@ -174,6 +175,7 @@ def csv_row(name: str, estimate: Estimate, refmap: ReferenceMap, sequence: bool)
         row["single_match_index"] = estimate.single_match_index
         row["state"] = estimate.state
         row["speed"] = "" if estimate.speed is None else f"{estimate.speed:.3f}"
+        row["disagrees"] = int(estimate.disagrees)
     return row
 
 
