@@ -138,3 +138,87 @@ def test_robotcar_frames_over_dds_get_the_answers_of_lostx_match(day_map, robotc
     stages = {lat.stage for lat in places[-1].latency}
     assert {"network", "total", "decode", "node"} <= stages
     assert answers.poses == []  # the sample's map has no positions: no pose to give
+
+
+def quaternion_by_hand(r: np.ndarray) -> tuple[float, float, float, float]:
+    """(w, x, y, z) of a rotation matrix (Shepperd's method, written out here)."""
+    trace = np.trace(r)
+    if trace > 0:
+        s = 2.0 * math.sqrt(1.0 + trace)
+        return 0.25 * s, (r[2, 1] - r[1, 2]) / s, (r[0, 2] - r[2, 0]) / s, (r[1, 0] - r[0, 1]) / s
+    i = int(np.argmax(np.diag(r)))
+    j, k = (i + 1) % 3, (i + 2) % 3
+    s = 2.0 * math.sqrt(1.0 + r[i, i] - r[j, j] - r[k, k])
+    q = [0.0, 0.0, 0.0, 0.0]
+    q[0] = (r[k, j] - r[j, k]) / s
+    q[1 + i] = 0.25 * s
+    q[1 + j] = (r[j, i] + r[i, j]) / s
+    q[1 + k] = (r[k, i] + r[i, k]) / s
+    return q[0], q[1], q[2], q[3]
+
+
+def drive_bag(scene: Path, path: Path, frames: int) -> Path:
+    """A drive as a ROS 2 robot records it: the nuScenes front camera's JPEGs (CompressedImage), its camera info,
+    its place on the vehicle in /tf_static, and the ego poses as odometry, one a frame and one after the last."""
+    from lostx.replay.dataset import SourceOptions, open_traverse
+
+    drive = open_traverse(scene / "front", options=SourceOptions(look_at=15.0))
+    g = drive.geometry
+    files = list_images(scene / "front")
+    stamps = [int(f.stem.rsplit("__", 1)[1]) * 1000 for f in files]
+    optical = "cam_front_optical"
+
+    def messages():
+        yield "/tf_static", "tf2_msgs/msg/TFMessage", tf_message(
+            transform("base_footprint", optical, (g.x, g.y, g.z), quaternion_by_hand(g.rotation))), stamps[0] - 1000
+        for k in range(frames + 1):
+            x, y, yaw = drive.odometry[k]
+            yield "/odom", "nav_msgs/msg/Odometry", odometry(x, y, stamps[k], yaw), stamps[k]
+            if k == frames:
+                break
+            yield "/camera/camera_info", "sensor_msgs/msg/CameraInfo", camera_info(
+                stamps[k], (g.fx, g.fy, g.cx, g.cy), g.width, g.height, optical), stamps[k] + 1
+            image = compressed_image(np.zeros((2, 2, 3), np.uint8), stamps[k])
+            image.update(format="jpeg", data=files[k].read_bytes())
+            image["header"]["frame_id"] = optical
+            yield IMAGES, "sensor_msgs/msg/CompressedImage", image, stamps[k] + 2
+    return write_bag(path, messages())
+
+
+def test_a_drive_with_camera_info_tf_and_odometry_gets_the_answers_and_poses_of_lostx_match(robotcar, tmp_path):
+    """The camera's geometry (camera info and /tf_static) and the motion (odometry) reach the localizer as the bag
+    reader gives them to lostx match (without the odometry the answers differ): the layout takes part, and the
+    map's positions come back as poses."""
+    scene = robotcar.parent / "nuscenes-frontrear" / "scene-0523"
+    bag = drive_bag(scene, tmp_path / "front.mcap", 12)
+    rear = tmp_path / "rear.map"
+    built = lostx("map", "build", scene / "rear", "--look-at", "--out", rear, "--quiet")
+    assert built.returncode == 0, built.stderr
+    rows = match_rows(rear, bag, tmp_path / "match.csv", "--topic", IMAGES, "--pose-topic", "/odom", "--window", "5")
+    domain = a_domain()
+    env = ros2tools.isolated(domain)
+    os.environ["CYCLONEDDS_URI"] = env["CYCLONEDDS_URI"]
+    try:
+        answers = ros2tools.Answers(ros2tools.domain(domain), ros2tools.Types())
+    finally:
+        del os.environ["CYCLONEDDS_URI"]
+    node = Node("--map", rear, "--topic", IMAGES, "--odom-topic", "/odom", "--window", "5", "--image-qos", "reliable",
+                "--odom-qos", "reliable", "--odometry-wait", "5", "--map-frame", "world", env=env,
+                log=tmp_path / "node.log")
+    try:
+        node.wait_ready()
+        played = play(bag, domain, env)
+        assert played.returncode == 0, played.stderr
+        places = answers.wait(12, 60)
+    finally:
+        log = node.stop()
+    assert node.proc.returncode == 0, log
+    assert "camera geometry from /camera/camera_info and /tf_static (cam_front_optical in base_footprint)" in log
+    assert "no odometry" not in log
+    assert_same_answers(places, rows)
+    assert all(any(lat.stage == "layout" and lat.ms > 0 for lat in p.latency) for p in places)  # geometry used
+    assert len(answers.poses) == 12
+    for place, pose in zip(places, answers.poses):
+        assert pose.header.frame_id == "world" and pose.header.stamp == place.header.stamp
+        assert (pose.pose.pose.position.x, pose.pose.pose.position.y) == (place.x, place.y)
+        assert pose.pose.covariance[0] == pose.pose.covariance[7] > 0
