@@ -32,7 +32,7 @@ from cyclonedds.util import duration
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
-from rosbags import MESSAGES, TYPES  # noqa: E402 (the ROS 2 interfaces' definitions, as the bags store them)
+from bagtools import MESSAGES, TYPES  # noqa: E402 (the ROS 2 interfaces' definitions, as the bags store them)
 
 LOSTX_MSGS = HERE.parent / "stream" / "ros2" / "interfaces" / "lostx_msgs" / "msg"
 EXTRA = {
@@ -246,15 +246,30 @@ def publish(bag: Path, domain_id: int, lockstep: str | None, answer_timeout: flo
     return sent
 
 
+def listen(domain_id: int) -> None:
+    """Subscribe to the answers (reliable, keep all), say so, and never read them: a subscriber that stalls."""
+    participant = domain(domain_id)
+    reader = DataReader(participant, Topic(participant, "rt/lostx/place", Types()["lostx_msgs/msg/Place"]),
+                        qos(keep_all=True))
+    wait_matched(reader, 60)
+    print("listening", flush=True)
+    while True:
+        time.sleep(1)
+
+
 def main() -> int:
     parser = argparse.ArgumentParser()
     sub = parser.add_subparsers(dest="command", required=True)
+    stall = sub.add_parser("listen")
+    stall.add_argument("--domain", type=int, required=True)
     play = sub.add_parser("publish")
     play.add_argument("bag", type=Path)
     play.add_argument("--domain", type=int, required=True)
     play.add_argument("--lockstep", metavar="NAMESPACE")
     play.add_argument("--answer-timeout", type=float, default=120.0)
     args = parser.parse_args()
+    if args.command == "listen":
+        listen(args.domain)
     sent = publish(args.bag, args.domain, args.lockstep, args.answer_timeout)
     print(f"published {sent} images", flush=True)
     return 0

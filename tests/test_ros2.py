@@ -20,7 +20,7 @@ import pytest
 pytest.importorskip("cyclonedds", reason="lostx[ros2] is part of the test extra")
 
 import ros2tools  # noqa: E402
-from rosbags import camera_info, compressed_image, odometry, tf_message, transform, write_bag  # noqa: E402
+from bagtools import camera_info, compressed_image, odometry, tf_message, transform, write_bag  # noqa: E402
 from test_cli import lostx  # noqa: E402
 
 from lostx.core.images import list_images  # noqa: E402
@@ -30,11 +30,6 @@ IMAGES = "/camera/image_raw/compressed"
 T0 = 1_700_000_000_000_000_000
 STARTUP_S = 120.0
 """Longest a node may take to start (the model loads) on a loaded machine."""
-
-
-def a_domain() -> int:
-    """A ROS domain of the test's own (the discovery tag isolates it too; this only spreads the ports)."""
-    return random.SystemRandom().randrange(100, 200)
 
 
 def night_bag(robotcar: Path, path: Path) -> Path:
@@ -47,6 +42,27 @@ def night_bag(robotcar: Path, path: Path) -> Path:
                 "header": {"stamp": {"sec": stamp // 10**9, "nanosec": stamp % 10**9}, "frame_id": "camera"},
                 "format": "png", "data": data}, stamp
     return write_bag(path, messages())
+
+
+class Peer:
+    """The test's side of the DDS conversation: a ROS domain and a discovery tag of its own, and a subscriber to the
+    answers, in this process."""
+
+    def __init__(self) -> None:
+        self.domain = random.SystemRandom().randrange(100, 200)  # the tag isolates it; this spreads the ports
+        self.env = ros2tools.isolated(self.domain)
+        os.environ["CYCLONEDDS_URI"] = self.env["CYCLONEDDS_URI"]
+        try:
+            self.participant = ros2tools.domain(self.domain)
+        finally:
+            del os.environ["CYCLONEDDS_URI"]
+        self.types = ros2tools.Types()
+        self.answers = ros2tools.Answers(self.participant, self.types)
+
+
+@pytest.fixture
+def peer() -> Peer:
+    return Peer()
 
 
 class Node:
@@ -111,16 +127,10 @@ def assert_same_answers(places: list, rows: list[dict[str, str]]) -> None:
             assert (place.x, place.y) == (float(row["x"]), float(row["y"]))
 
 
-def test_robotcar_frames_over_dds_get_the_answers_of_lostx_match(day_map, robotcar, tmp_path):
+def test_robotcar_frames_over_dds_get_the_answers_of_lostx_match(day_map, robotcar, tmp_path, peer):
     bag = night_bag(robotcar, tmp_path / "night.mcap")
     rows = match_rows(day_map.path, bag, tmp_path / "match.csv", "--window", "3")
-    domain = a_domain()
-    env = ros2tools.isolated(domain)
-    os.environ["CYCLONEDDS_URI"] = env["CYCLONEDDS_URI"]  # the subscriber here joins the same tag
-    try:
-        answers = ros2tools.Answers(ros2tools.domain(domain), ros2tools.Types())
-    finally:
-        del os.environ["CYCLONEDDS_URI"]
+    domain, env, answers = peer.domain, peer.env, peer.answers
     node = Node("--map", day_map.path, "--topic", IMAGES, "--window", "3", "--domain-id", domain,
                 "--image-qos", "reliable", env=env, log=tmp_path / "node.log")
     try:
@@ -185,7 +195,8 @@ def drive_bag(scene: Path, path: Path, frames: int) -> Path:
     return write_bag(path, messages())
 
 
-def test_a_drive_with_camera_info_tf_and_odometry_gets_the_answers_and_poses_of_lostx_match(robotcar, tmp_path):
+def test_a_drive_with_camera_info_tf_and_odometry_gets_the_answers_and_poses_of_lostx_match(robotcar, tmp_path,
+                                                                                           peer):
     """The camera's geometry (camera info and /tf_static) and the motion (odometry) reach the localizer as the bag
     reader gives them to lostx match (without the odometry the answers differ): the layout takes part, and the
     map's positions come back as poses."""
@@ -195,13 +206,7 @@ def test_a_drive_with_camera_info_tf_and_odometry_gets_the_answers_and_poses_of_
     built = lostx("map", "build", scene / "rear", "--look-at", "--out", rear, "--quiet")
     assert built.returncode == 0, built.stderr
     rows = match_rows(rear, bag, tmp_path / "match.csv", "--topic", IMAGES, "--pose-topic", "/odom", "--window", "5")
-    domain = a_domain()
-    env = ros2tools.isolated(domain)
-    os.environ["CYCLONEDDS_URI"] = env["CYCLONEDDS_URI"]
-    try:
-        answers = ros2tools.Answers(ros2tools.domain(domain), ros2tools.Types())
-    finally:
-        del os.environ["CYCLONEDDS_URI"]
+    domain, env, answers = peer.domain, peer.env, peer.answers
     node = Node("--map", rear, "--topic", IMAGES, "--odom-topic", "/odom", "--window", "5", "--image-qos", "reliable",
                 "--odom-qos", "reliable", "--odometry-wait", "5", "--map-frame", "world", env=env,
                 log=tmp_path / "node.log")
@@ -222,3 +227,98 @@ def test_a_drive_with_camera_info_tf_and_odometry_gets_the_answers_and_poses_of_
         assert pose.header.frame_id == "world" and pose.header.stamp == place.header.stamp
         assert (pose.pose.pose.position.x, pose.pose.pose.position.y) == (place.x, place.y)
         assert pose.pose.covariance[0] == pose.pose.covariance[7] > 0
+
+
+def raw_image(types: ros2tools.Types, rgb: np.ndarray | None, stamp: int, *, height: int = 0, width: int = 0,
+              data: bytes | None = None) -> object:
+    if rgb is not None:
+        height, width = rgb.shape[:2]
+        data = rgb.tobytes()
+    return types.build("sensor_msgs/msg/Image", {
+        "header": {"stamp": {"sec": stamp // 10**9, "nanosec": stamp % 10**9}, "frame_id": "cam"},
+        "height": height, "width": width, "encoding": "rgb8", "step": 3 * width, "data": data})
+
+
+def test_frames_that_cannot_be_answered_get_bad_frame_and_the_node_goes_on(day_map, robotcar, tmp_path, peer):
+    """Two cameras (raw and compressed): garbage bytes, a frame too small to localize, pixels short of the size
+    declared and a size over the limit are each answered with bad_frame and a logged error; the good frames after
+    them are answered, each camera a stream of its own."""
+    import cv2
+
+    node = Node("--map", day_map.path, "--topic", "/cam/image_raw", "--topic", "/cam/image_raw/compressed",
+                "--image-qos", "reliable", "--window", "3", "--domain-id", peer.domain, env=peer.env,
+                log=tmp_path / "node.log")
+    types, participant = peer.types, peer.participant
+    raw = ros2tools.DataWriter(participant, ros2tools.Topic(participant, "rt/cam/image_raw",
+                                                            types["sensor_msgs/msg/Image"]), ros2tools.qos())
+    packed = ros2tools.DataWriter(participant, ros2tools.Topic(participant, "rt/cam/image_raw/compressed",
+                                                               types["sensor_msgs/msg/CompressedImage"]),
+                                  ros2tools.qos())
+    night = list_images(robotcar / "night")
+    frames = [
+        (packed, types.build("sensor_msgs/msg/CompressedImage", {"format": "png", "data": b"not an image at all"})),
+        (raw, raw_image(types, np.zeros((8, 8, 3), np.uint8), T0 + 1)),
+        (raw, raw_image(types, None, T0 + 2, height=100, width=100, data=bytes(10))),
+        (raw, raw_image(types, None, T0 + 3, height=100_000, width=100_000, data=bytes(3))),
+        (packed, types.build("sensor_msgs/msg/CompressedImage", {
+            "header": {"stamp": {"sec": T0 // 10**9 + 1}}, "format": "png", "data": night[0].read_bytes()})),
+        (raw, raw_image(types, cv2.cvtColor(cv2.imread(str(night[1])), cv2.COLOR_BGR2RGB), T0 + 10**9)),
+    ]
+    try:
+        node.wait_ready()
+        ros2tools.wait_matched(raw)
+        ros2tools.wait_matched(packed)
+        for n, (writer, message) in enumerate(frames, start=1):
+            writer.write(message)
+            assert len(peer.answers.wait(n, 60)) == n, node.log.read_text()
+    finally:
+        log = node.stop()
+    assert node.proc.returncode == 0, log
+    places = peer.answers.places
+    assert [p.state for p in places[:4]] == ["bad_frame"] * 4
+    assert [p.stream for p in places] == ["/cam/image_raw/compressed"] + ["/cam/image_raw"] * 3 + [
+        "/cam/image_raw/compressed", "/cam/image_raw"]
+    assert "cannot be decoded" in places[0].error
+    assert places[1].error == "image of 8x8 pixels is too small"
+    assert "too few" in places[2].error
+    assert "over the limit" in places[3].error
+    assert all(p.match_index == -1 for p in places[:4])
+    assert [p.state for p in places[4:]] == ["not_localized"] * 2 and [p.warming_up for p in places[4:]] == [True] * 2
+    assert [p.frame for p in places] == [0, 0, 1, 2, 1, 3]  # numbered per camera
+    assert log.count("bad_frame") == 4
+    assert "/cam/image_raw: answered 1 of 4 frames, 3 bad" in log
+    assert "/cam/image_raw/compressed: answered 1 of 2 frames, 1 bad" in log
+
+
+def test_answers_never_wait_for_a_stalled_subscriber(tmp_path):
+    """A subscriber that stops reading (SIGSTOP) takes none of the localizer's time: the answers' writer keeps the
+    last answers for it and goes on. A keep-all writer would stop at Cyclone's history limit (500 kB) and fail."""
+    from lostx.core.config import Ros2Config
+    from lostx.stream.ros2 import dds, msgs
+
+    domain = random.SystemRandom().randrange(100, 200)
+    env = ros2tools.isolated(domain)
+    stalled = subprocess.Popen([sys.executable, str(HERE / "ros2tools.py"), "listen", "--domain", str(domain)],
+                               env=env, stdout=subprocess.PIPE, text=True)
+    try:
+        os.environ["CYCLONEDDS_URI"] = env["CYCLONEDDS_URI"]
+        try:
+            participant = dds.participant(Ros2Config(domain_id=domain))
+        finally:
+            del os.environ["CYCLONEDDS_URI"]
+        from cyclonedds.pub import DataWriter
+        from cyclonedds.topic import Topic
+
+        writer = DataWriter(participant, Topic(participant, "rt/lostx/place", msgs.Place), dds.answer_qos(Ros2Config()))
+        assert stalled.stdout.readline().strip() == "listening"
+        ros2tools.wait_matched(writer)
+        os.kill(stalled.pid, signal.SIGSTOP)
+        answer = msgs.Place(stream="/camera/image_raw", state="localized", error="x" * 2000,
+                            candidates=[msgs.Candidate(k, 0.5, 1.5, 40) for k in range(10)])
+        for frame in range(2000):  # 5 MB of answers, ten times the writer's history limit
+            answer.frame = frame
+            writer.write(answer)
+        assert writer.get_publication_matched_status().current_count == 1  # still there, still stalled
+    finally:
+        stalled.kill()
+        stalled.wait()

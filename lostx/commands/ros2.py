@@ -106,6 +106,7 @@ def run(args: argparse.Namespace) -> int:
     from lostx.core.geometry import read_camera_file
     from lostx.core.maps.refmap import ReferenceMap
     from lostx.core.outputs import check_output_file
+    from lostx.stream.ros2.names import check_topic
     from lostx.stream.ros2.node import Ros2Localizer
     from lostx.stream.sinks import JsonlSink
     from lostx.stream.streams import localizer_factory
@@ -116,6 +117,9 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("lostx ros2 needs --map MAP (the map to localize in)")
     if not args.topic:
         raise InputError("lostx ros2 needs --topic TOPIC: the camera's image topic (e.g. /camera/image_raw)")
+    for topic in [*args.topic, args.odom_topic, args.camera_info_topic]:
+        if topic is not None:
+            check_topic(topic)
     stop = _SignalStop()
     with stop:
         config = ros2_config_from_args(args, config_from_args(args))

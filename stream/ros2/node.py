@@ -323,7 +323,7 @@ class Ros2Localizer:
             if not isinstance(exc, LostxError):
                 self.log(f"{camera.topic} frame {pending.frame}: unexpected {type(exc).__name__}\n"
                          f"{traceback.format_exc()}")
-            answer.error = str(exc) or type(exc).__name__
+            answer.error = (str(exc) or type(exc).__name__).removeprefix(f"frame {frame.id}: ")  # the Place says which
         self._publish(camera, answer, pending.taken)
         if answer.estimate is not None:
             for sink in self.sinks:
