@@ -14,7 +14,8 @@ round after round) and medians are reported.
 - added latency: one frame at a time; the round trip (published -> answer received) minus the localizer's own
   step time (the answer's `total` latency): serialising, DDS on loopback, decoding the image and the answer.
 
-    python benchmarks/bench_ros2.py [--quick] [--frames 20] [--rounds 3] [--pings 20] [--out benchmarks/results/ros2.json]
+    python benchmarks/bench_ros2.py [--quick] [--frames 20] [--rounds 3] [--pings 20]
+                                    [--out benchmarks/results/ros2.json]
 """
 
 from __future__ import annotations

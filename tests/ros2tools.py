@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import random
 import sys
 import time
 import types
@@ -139,13 +140,24 @@ def _convert(kind: Any, raw: Any) -> Any:
 
 def domain(domain_id: int) -> DomainParticipant:
     """A participant on the loopback interface, in the test's own discovery tag (``$CYCLONEDDS_URI``)."""
+    config = ",".join(p for p in (LOOPBACK, os.environ.get("CYCLONEDDS_URI", "")) if p)
     if domain_id not in _DOMAINS:
-        config = ",".join(p for p in (LOOPBACK, os.environ.get("CYCLONEDDS_URI", "")) if p)
-        _DOMAINS[domain_id] = Domain(domain_id, config)
+        _DOMAINS[domain_id] = (Domain(domain_id, config), config)
+    if _DOMAINS[domain_id][1] != config:
+        raise ValueError(f"domain {domain_id} is set up already, for another discovery tag: take another")
     return DomainParticipant(domain_id)
 
 
-_DOMAINS: dict[int, Domain] = {}
+def unused_domain() -> int:
+    """A ROS domain no participant of this process is in (a process keeps each domain's settings)."""
+    free = sorted(set(range(100, 200)) - set(_DOMAINS) - _TAKEN)
+    chosen = random.SystemRandom().choice(free)
+    _TAKEN.add(chosen)
+    return chosen
+
+
+_DOMAINS: dict[int, tuple[Domain, str]] = {}
+_TAKEN: set[int] = set()
 
 
 def isolated(domain_id: int) -> dict[str, str]:
@@ -226,6 +238,11 @@ def publish(bag: Path, domain_id: int, lockstep: str | None, answer_timeout: flo
         wait_matched(writer)
     if answers is not None:
         wait_matched(answers.place)
+    # Matched here is not yet matched there: a message written before the other side has found this writer never
+    # reaches it (DDS discovery). The test says when it has (lostx logs each publisher it finds).
+    print("matched", flush=True)
+    if sys.stdin.readline().strip() != "go":
+        raise RuntimeError("told to stop before publishing")
     sent = 0
     for topic, schema, decoded in messages:
         writer = writers[topic]

@@ -7,7 +7,7 @@ from __future__ import annotations
 import csv
 import math
 import os
-import random
+import re
 import signal
 import subprocess
 import sys
@@ -49,7 +49,7 @@ class Peer:
     answers, in this process."""
 
     def __init__(self) -> None:
-        self.domain = random.SystemRandom().randrange(100, 200)  # the tag isolates it; this spreads the ports
+        self.domain = ros2tools.unused_domain()  # the tag isolates it; this spreads the ports
         self.env = ros2tools.isolated(self.domain)
         os.environ["CYCLONEDDS_URI"] = self.env["CYCLONEDDS_URI"]
         try:
@@ -74,12 +74,14 @@ class Node:
         self.proc = subprocess.Popen([sys.executable, "-m", "lostx.cli", "ros2", *map(str, args)], env=env,
                                      stdout=self._out, stderr=subprocess.STDOUT, text=True)
 
-    def wait_ready(self) -> None:
-        end = time.monotonic() + STARTUP_S
-        while "answering" not in self.log.read_text():
+    def wait_for(self, text: str, timeout: float = STARTUP_S) -> None:
+        """Until the node's log says ``text`` (it started: "answering"; it found a publisher: "TOPIC: 1 publisher";
+        frames published before that never reach it, as with any DDS subscriber)."""
+        end = time.monotonic() + timeout
+        while text not in self.log.read_text():
             if self.proc.poll() is not None or time.monotonic() > end:
-                raise AssertionError(f"lostx ros2 did not start:\n{self.log.read_text()}")
-            time.sleep(0.1)
+                raise AssertionError(f"lostx ros2 did not say {text!r}:\n{self.log.read_text()}")
+            time.sleep(0.05)
 
     def stop(self) -> str:
         if self.proc.poll() is None:
@@ -93,11 +95,27 @@ class Node:
         return self.log.read_text()
 
 
-def play(bag: Path, domain: int, env: dict[str, str], lockstep: bool = True) -> subprocess.CompletedProcess:
-    args = [sys.executable, str(HERE / "ros2tools.py"), "publish", str(bag), "--domain", str(domain)]
+def play(bag: Path, peer: Peer, node: Node, topics: list[str], answers: tuple[str, ...] = ("/lostx/place",),
+         lockstep: bool = True) -> None:
+    """Replay ``bag`` over DDS from a process of its own, once ``node`` has found its publisher of each of
+    ``topics`` and the subscribers to its ``answers``."""
+    args = [sys.executable, str(HERE / "ros2tools.py"), "publish", str(bag), "--domain", str(peer.domain)]
     if lockstep:
         args += ["--lockstep", "/lostx"]
-    return subprocess.run(args, env=env, capture_output=True, text=True, timeout=600)
+    player = subprocess.Popen(args, env=peer.env, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                              stderr=subprocess.PIPE, text=True)
+    try:
+        assert player.stdout.readline().strip() == "matched", player.stderr.read()
+        for topic in topics:
+            node.wait_for(f"{topic}: 1 publisher", 60)
+        for topic in answers:  # this test's subscriber and the player's
+            node.wait_for(f"{topic}: 2 subscribers", 60)
+        out, err = player.communicate("go\n", timeout=600)
+    finally:
+        if player.poll() is None:
+            player.kill()
+            player.wait()
+    assert player.returncode == 0, err
 
 
 def match_rows(map_path: Path, bag: Path, out: Path, *options: str) -> list[dict[str, str]]:
@@ -130,14 +148,12 @@ def assert_same_answers(places: list, rows: list[dict[str, str]]) -> None:
 def test_robotcar_frames_over_dds_get_the_answers_of_lostx_match(day_map, robotcar, tmp_path, peer):
     bag = night_bag(robotcar, tmp_path / "night.mcap")
     rows = match_rows(day_map.path, bag, tmp_path / "match.csv", "--window", "3")
-    domain, env, answers = peer.domain, peer.env, peer.answers
-    node = Node("--map", day_map.path, "--topic", IMAGES, "--window", "3", "--domain-id", domain,
-                "--image-qos", "reliable", env=env, log=tmp_path / "node.log")
+    node = Node("--map", day_map.path, "--topic", IMAGES, "--window", "3", "--domain-id", peer.domain,
+                "--image-qos", "reliable", env=peer.env, log=tmp_path / "node.log")
     try:
-        node.wait_ready()
-        played = play(bag, domain, env)
-        assert played.returncode == 0, played.stderr
-        places = answers.wait(10, 60)
+        node.wait_for("answering")
+        play(bag, peer, node, [IMAGES])
+        places = peer.answers.wait(10, 60)
     finally:
         log = node.stop()
     assert node.proc.returncode == 0, log
@@ -147,7 +163,7 @@ def test_robotcar_frames_over_dds_get_the_answers_of_lostx_match(day_map, robotc
     assert [p.warming_up for p in places[:2]] == [True, True]
     stages = {lat.stage for lat in places[-1].latency}
     assert {"network", "total", "decode", "node"} <= stages
-    assert answers.poses == []  # the sample's map has no positions: no pose to give
+    assert peer.answers.poses == []  # the sample's map has no positions: no pose to give
 
 
 def quaternion_by_hand(r: np.ndarray) -> tuple[float, float, float, float]:
@@ -206,15 +222,13 @@ def test_a_drive_with_camera_info_tf_and_odometry_gets_the_answers_and_poses_of_
     built = lostx("map", "build", scene / "rear", "--look-at", "--out", rear, "--quiet")
     assert built.returncode == 0, built.stderr
     rows = match_rows(rear, bag, tmp_path / "match.csv", "--topic", IMAGES, "--pose-topic", "/odom", "--window", "5")
-    domain, env, answers = peer.domain, peer.env, peer.answers
     node = Node("--map", rear, "--topic", IMAGES, "--odom-topic", "/odom", "--window", "5", "--image-qos", "reliable",
-                "--odom-qos", "reliable", "--odometry-wait", "5", "--map-frame", "world", env=env,
-                log=tmp_path / "node.log")
+                "--odom-qos", "reliable", "--odometry-wait", "5", "--map-frame", "world", "--domain-id", peer.domain,
+                env=peer.env, log=tmp_path / "node.log")
     try:
-        node.wait_ready()
-        played = play(bag, domain, env)
-        assert played.returncode == 0, played.stderr
-        places = answers.wait(12, 60)
+        node.wait_for("answering")
+        play(bag, peer, node, [IMAGES, "/odom", "/camera/camera_info", "/tf_static"], ("/lostx/place", "/lostx/pose"))
+        places = peer.answers.wait(12, 60)
     finally:
         log = node.stop()
     assert node.proc.returncode == 0, log
@@ -222,8 +236,8 @@ def test_a_drive_with_camera_info_tf_and_odometry_gets_the_answers_and_poses_of_
     assert "no odometry" not in log
     assert_same_answers(places, rows)
     assert all(any(lat.stage == "layout" and lat.ms > 0 for lat in p.latency) for p in places)  # geometry used
-    assert len(answers.poses) == 12
-    for place, pose in zip(places, answers.poses):
+    assert len(peer.answers.poses) == 12
+    for place, pose in zip(places, peer.answers.poses):
         assert pose.header.frame_id == "world" and pose.header.stamp == place.header.stamp
         assert (pose.pose.pose.position.x, pose.pose.pose.position.y) == (place.x, place.y)
         assert pose.pose.covariance[0] == pose.pose.covariance[7] > 0
@@ -265,9 +279,9 @@ def test_frames_that_cannot_be_answered_get_bad_frame_and_the_node_goes_on(day_m
         (raw, raw_image(types, cv2.cvtColor(cv2.imread(str(night[1])), cv2.COLOR_BGR2RGB), T0 + 10**9)),
     ]
     try:
-        node.wait_ready()
-        ros2tools.wait_matched(raw)
-        ros2tools.wait_matched(packed)
+        for found in ("/cam/image_raw: 1 publisher", "/cam/image_raw/compressed: 1 publisher",
+                      "/lostx/place: 1 subscriber"):
+            node.wait_for(found)
         for n, (writer, message) in enumerate(frames, start=1):
             writer.write(message)
             assert len(peer.answers.wait(n, 60)) == n, node.log.read_text()
@@ -296,7 +310,7 @@ def test_answers_never_wait_for_a_stalled_subscriber(tmp_path):
     from lostx.core.config import Ros2Config
     from lostx.stream.ros2 import dds, msgs
 
-    domain = random.SystemRandom().randrange(100, 200)
+    domain = ros2tools.unused_domain()
     env = ros2tools.isolated(domain)
     stalled = subprocess.Popen([sys.executable, str(HERE / "ros2tools.py"), "listen", "--domain", str(domain)],
                                env=env, stdout=subprocess.PIPE, text=True)
@@ -322,3 +336,20 @@ def test_answers_never_wait_for_a_stalled_subscriber(tmp_path):
     finally:
         stalled.kill()
         stalled.wait()
+
+
+def test_a_fast_dds_peer_gets_the_answers_of_lostx_match(tmp_path):
+    """Fast DDS (rmw_fastrtps' middleware) on the other side: a C++ peer (scripts/fastdds_peer.cpp) publishes the
+    RobotCar night frames and decodes every Place and pose with Fast CDR; each is what lostx match says. Runs where
+    Fast DDS's headers are installed (apt-get install libfastrtps-dev libfastcdr-dev)."""
+    sys.path.insert(0, str(HERE.parent / "scripts"))
+    import check_fastdds
+
+    missing = check_fastdds.fast_dds_missing()
+    if missing is not None:
+        pytest.skip(f"no Fast DDS peer here: {missing}")
+    found = check_fastdds.run(tmp_path)
+    assert check_fastdds.differences(found) == []
+    assert len(found["places"]) == len(found["poses"]) == 10
+    assert all(pose["frame_id"] == "map" for pose in found["poses"])
+    assert re.search(r"answered (\d+) of \1 frames", found["node"]) and found["probes"] >= 1  # and the probe

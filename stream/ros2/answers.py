@@ -126,7 +126,8 @@ def place_message(answer: FrameAnswer) -> msgs.Place:
     return message
 
 
-def pose_message(answer: FrameAnswer, places: MapPlaces | None, map_frame: str) -> msgs.PoseWithCovarianceStamped | None:
+def pose_message(answer: FrameAnswer, places: MapPlaces | None,
+                 map_frame: str) -> msgs.PoseWithCovarianceStamped | None:
     """The matched place on the map, stamped as the frame; None for a bad frame or a map without positions."""
     estimate = answer.estimate
     if estimate is None or places is None:

@@ -138,6 +138,7 @@ class Ros2Localizer:
         self._waitset: Any = None
         self._next_health = 0.0
         self._said: set[str] = set()
+        self._matched: dict[str, int] = {}
         self._started = time.monotonic()
 
     # -- lifecycle -----------------------------------------------------------------------------
@@ -218,6 +219,7 @@ class Ros2Localizer:
                  f"{self.place_topic}" + (f" and {self.pose_topic}" if self._pose_writer is not None else ""))
         while not self._stop.is_set():
             self._take_side_topics()
+            self._watch_matches()
             self._check_health()
             camera = self._next_camera()
             if camera is None:
@@ -273,8 +275,8 @@ class Ros2Localizer:
     def _bad_sample(self, camera: _Camera, exc: Exception) -> None:
         frame = camera.counts.received
         camera.counts.received += 1
-        text = f"a message on {camera.topic} does not decode as {'CompressedImage' if camera.compressed else 'Image'} " \
-               f"({type(exc).__name__}: {exc})"
+        kind = "CompressedImage" if camera.compressed else "Image"
+        text = f"a message on {camera.topic} does not decode as {kind} ({type(exc).__name__}: {exc})"
         self._publish(camera, FrameAnswer(camera.topic, frame, 0, "", error=text), time.monotonic())
 
     def _wait_for_side_topics(self, camera: _Camera, stamp: int) -> None:
@@ -385,27 +387,40 @@ class Ros2Localizer:
             said.add(key)
             self.log(text)
 
+    def _watch_matches(self) -> None:
+        """Say when a topic gains or loses publishers (or, for the answers, subscribers): DDS discovery takes a
+        moment, and a message sent before both ends have found each other does not reach the other end."""
+        ends = [(name, _publishers(reader), "publisher") for name, reader in self._readers().items()]
+        ends += [(name, int(writer.get_publication_matched_status().current_count), "subscriber")
+                 for name, writer in ((self.place_topic, self._place_writer), (self.pose_topic, self._pose_writer))
+                 if writer is not None]
+        for name, count, what in ends:
+            if count != self._matched.get(name, 0):
+                self._matched[name] = count
+                self.log(f"{name}: {count} {what}{'' if count == 1 else 's'}")
+
+    def _readers(self) -> dict[str, Any]:
+        """Every reader, by its topic."""
+        readers = {c.topic: c.reader for c in self._cameras}
+        readers.update({c.topics.info_topic: c.info_reader for c in self._cameras})
+        if self._odometry_reader is not None:
+            readers[self.odometry_topic] = self._odometry_reader  # type: ignore[index]
+        if self._tf_reader is not None:
+            readers["/tf_static"] = self._tf_reader
+        return readers
+
     def _check_health(self) -> None:
         """Say once what does not match: a topic offered with QoS this node cannot take, or nothing published."""
         now = time.monotonic()
         if now < self._next_health:
             return
-        first = self._next_health == 0.0
         self._next_health = now + HEALTH_S
         self.streams.expire(now)
-        readers = [(c.topic, c.reader) for c in self._cameras] + [(c.topics.info_topic, c.info_reader)
-                                                                  for c in self._cameras]
-        if self._odometry_reader is not None:
-            readers.append((self.odometry_topic, self._odometry_reader))
-        for name, reader in readers:
+        for name, reader in self._readers().items():
             status = reader.get_requested_incompatible_qos_status()
             if status.total_count > 0:
                 self._say(None, f"qos {name}", f"{name}: a publisher offers QoS this node cannot take (policy "
                                                f"{status.last_policy_id}); see docs/ros2.md, QoS")
-        if not first and now - self._started > 2 * HEALTH_S:
-            for camera in self._cameras:
-                if _publishers(camera.reader) == 0:
-                    self._say(camera, "no publisher", f"nothing publishes {camera.topic} yet")
 
 
 def _take_all(reader: Any, said: set[str], log: Callable[[str], None], name: str | None) -> list[Any]:
