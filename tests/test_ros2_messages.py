@@ -225,6 +225,7 @@ def test_the_command_says_what_it_lacks(tmp_path):
     assert_one_line_error(lostx("ros2", "--map", tmp_path), "--topic")
     assert_one_line_error(lostx("ros2", "--map", tmp_path, "--topic", "/cam/image raw"), "not a ROS 2 topic name")
     assert_one_line_error(lostx("ros2", "--map", tmp_path, "--topic", "/cam", "--domain-id", "300"), "--domain-id")
+    assert_one_line_error(lostx("ros2", "--map", tmp_path, "--topic", "/cam", "--interface", "eth0<"), "--interface")
 
 
 def test_the_ros2_extra_is_in_the_test_extra():
@@ -234,3 +235,30 @@ def test_the_ros2_extra_is_in_the_test_extra():
     extras = project["optional-dependencies"]
     assert any(d.startswith("cyclonedds") for d in extras["ros2"])
     assert "ros2" in extras["test"][0] and any(d.startswith("rosbags") for d in extras["test"])
+
+
+def test_keep_all_images_hold_a_reliable_publisher_back(monkeypatch):
+    """Every frame, in order, and never more than KEEP_ALL_FRAMES waiting for the localizer: a reliable publisher
+    (ros2 bag play) is then made to wait, rather than lostx's memory growing with the recording."""
+    import uuid
+
+    from cyclonedds.core import DDSException, Policy, Qos
+    from cyclonedds.pub import DataWriter
+    from cyclonedds.sub import DataReader
+    from cyclonedds.topic import Topic
+    from cyclonedds.util import duration
+
+    monkeypatch.setenv("CYCLONEDDS_URI", f"<CycloneDDS><Domain><Discovery><Tag>lostx-test-{uuid.uuid4().hex}</Tag>"
+                                         f"</Discovery></Domain></CycloneDDS>")
+    participant = dds.participant(Ros2Config(domain_id=231))
+    topic = Topic(participant, "rt/camera/image_raw/compressed", msgs.CompressedImage)
+    reader = DataReader(participant, topic, dds.image_qos(Ros2Config(image_reliability="reliable", image_depth=0)))
+    writer = DataWriter(participant, topic, Qos(Policy.Reliability.Reliable(duration(milliseconds=200)),
+                                                Policy.History.KeepAll))
+    frame = msgs.CompressedImage(msgs.Header(), "jpeg", bytes(100_000))
+    for _ in range(dds.KEEP_ALL_FRAMES):
+        writer.write(frame)
+    with pytest.raises(DDSException, match="TIMEOUT"):
+        writer.write(frame)  # one more waits for the localizer, here in vain
+    assert len(reader.take(100)) == dds.KEEP_ALL_FRAMES
+    writer.write(frame)  # taken: room again

@@ -106,6 +106,7 @@ def run(args: argparse.Namespace) -> int:
     from lostx.core.geometry import read_camera_file
     from lostx.core.maps.refmap import ReferenceMap
     from lostx.core.outputs import check_output_file
+    from lostx.stream.ros2.dds import cyclone_config
     from lostx.stream.ros2.names import check_topic
     from lostx.stream.ros2.node import Ros2Localizer
     from lostx.stream.sinks import JsonlSink
@@ -120,6 +121,8 @@ def run(args: argparse.Namespace) -> int:
     for topic in [*args.topic, args.odom_topic, args.camera_info_topic]:
         if topic is not None:
             check_topic(topic)
+    if args.interface is not None:
+        cyclone_config(args.interface)  # a bad interface is said before the map loads
     stop = _SignalStop()
     with stop:
         config = ros2_config_from_args(args, config_from_args(args))

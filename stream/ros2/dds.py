@@ -29,6 +29,8 @@ TF_STATIC_DEPTH = 100
 """tf2's static listener keeps this many (transient local: a late joiner gets every static transform)."""
 SIDE_DEPTH = 100
 """Camera infos and odometry messages held between two looks (a look comes with every frame)."""
+KEEP_ALL_FRAMES = 16
+"""Keep-all images: frames held waiting for the localizer before a reliable publisher is made to wait."""
 
 
 def cyclone_config(interface: str) -> str:
@@ -108,8 +110,13 @@ def image_qos(config: Ros2Config) -> Any:
     from cyclonedds.core import Policy, Qos
 
     keep_all = config.image_reliability == "reliable" and config.image_depth == 0
-    history = Policy.History.KeepAll if keep_all else Policy.History.KeepLast(max(config.image_depth, 1))
-    return Qos(_reliability(config.image_reliability), history, Policy.Durability.Volatile, _read_representations())
+    if keep_all:  # every frame, and no more than KEEP_ALL_FRAMES waiting: then the publisher is held back
+        limits = Policy.ResourceLimits(max_samples=KEEP_ALL_FRAMES, max_instances=1,
+                                       max_samples_per_instance=KEEP_ALL_FRAMES)
+        return Qos(_reliability("reliable"), Policy.History.KeepAll, limits, Policy.Durability.Volatile,
+                   _read_representations())
+    return Qos(_reliability(config.image_reliability), Policy.History.KeepLast(max(config.image_depth, 1)),
+               Policy.Durability.Volatile, _read_representations())
 
 
 def side_qos(reliability: str) -> Any:

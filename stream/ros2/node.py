@@ -45,6 +45,10 @@ POLL_S = 0.1
 SIDE_POLL_S = 0.002
 """How often the side topics are looked at while a frame waits for its odometry or camera info."""
 HEALTH_S = 2.0
+LOGGED_BAD = 10
+"""Bad frames logged in full per camera; after them, one in :data:`LOGGED_BAD_EVERY` (a camera sending garbage
+must not flood the log)."""
+LOGGED_BAD_EVERY = 100
 """How often the topics' matches are looked at, to say once what is missing."""
 
 
@@ -115,7 +119,6 @@ class Ros2Localizer:
         self.odometry_topic = check_topic(odometry_topic, "odometry topic") if odometry_topic else None
         self.info_topic = check_topic(info_topic, "camera info topic") if info_topic else None
         self.place_topic, self.pose_topic = answer_topics(self.settings.namespace)
-        check_topic(self.settings.map_frame.lstrip("/") or "?", "map frame")
         self.camera = camera
         self.geometry = geometry
         self.sinks = list(sinks)
@@ -369,7 +372,10 @@ class Ros2Localizer:
     def _publish(self, camera: _Camera, answer: FrameAnswer, taken: float) -> None:
         if answer.estimate is None:
             camera.counts.bad += 1
-            self.log(f"{camera.topic} frame {answer.frame}: bad_frame: {answer.error}")
+            if camera.counts.bad <= LOGGED_BAD or camera.counts.bad % LOGGED_BAD_EVERY == 0:
+                more = (f" (from here on one in {LOGGED_BAD_EVERY} is logged; all are answered)"
+                        if camera.counts.bad == LOGGED_BAD else "")
+                self.log(f"{camera.topic} frame {answer.frame}: bad_frame: {answer.error}{more}")
         else:
             camera.counts.answered += 1
         answer.latency_ms["node"] = node_ms = 1e3 * (time.monotonic() - taken)
