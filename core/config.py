@@ -37,6 +37,8 @@ LayoutUse = Literal["auto", "on", "off"]
 MotionSource = Literal["auto", "odometry", "visual"]
 Follow = Literal["auto", "distance", "frames"]
 WarmUp = Literal["sequence", "single"]
+Reliability = Literal["best_effort", "reliable"]
+Durability = Literal["volatile", "transient_local"]
 CUES: tuple[str, ...] = ("lostx", "layout", "appearance")
 """The single-frame cues (lostx.core.match.combined), in the order their weights are reported."""
 
@@ -418,6 +420,42 @@ class StreamConfig:
 
 
 @dataclass(frozen=True)
+class Ros2Config:
+    """``lostx ros2``: the topics it reads and writes over DDS as ROS 2 nodes do (docs/ros2.md explains each).
+    Read by lostx.stream.ros2 only."""
+
+    domain_id: int | None = None
+    """The ROS domain (DDS domain id); None: ``$ROS_DOMAIN_ID``, else 0."""
+    interface: str = "loopback"
+    """The network interface DDS uses: ``loopback`` (this machine only), an interface's name or address (other
+    machines on that network), or ``auto`` (Cyclone DDS chooses)."""
+    namespace: str = "/lostx"
+    """The answers are published on ``<namespace>/place`` and ``<namespace>/pose``."""
+    map_frame: str = "map"
+    """The ``frame_id`` of the published poses: the map's positions are in this frame."""
+    image_reliability: Reliability = "best_effort"
+    """Images: ``best_effort`` (ROS's sensor-data profile) takes frames from any publisher; ``reliable`` asks
+    a reliable publisher for every frame."""
+    image_depth: int = 5
+    """Images held for the localizer, per camera topic; with ``image_reliability = "reliable"``, 0 keeps every
+    image (keep all: a reliable publisher is held back until the localizer has taken each one)."""
+    odometry_reliability: Reliability = "best_effort"
+    """Odometry: ``best_effort`` takes it from any publisher; ``reliable`` only from reliable ones, and misses none."""
+    answer_reliability: Reliability = "reliable"
+    answer_durability: Durability = "volatile"
+    """``transient_local``: a subscriber that joins late gets the last ``answer_depth`` answers."""
+    answer_depth: int = 10
+    """Answers kept for each subscriber (keep last: a subscriber that stalls loses the oldest, and never holds
+    up the localizer)."""
+    odometry_wait: float = 0.1
+    """Seconds a frame waits for an odometry message stamped at or after it (to interpolate the motion)."""
+    camera_info_wait: float = 0.05
+    """Seconds a frame waits for the camera info stamped as it is (else the latest camera info is used)."""
+    max_extrapolation: float = 0.5
+    """Seconds past its newest odometry message a frame's pose is extrapolated; further, the frame has none."""
+
+
+@dataclass(frozen=True)
 class Config:
     """Everything lostx can be tuned by."""
 
@@ -434,6 +472,7 @@ class Config:
     motion: MotionConfig = field(default_factory=MotionConfig)
     decision: DecisionConfig = field(default_factory=DecisionConfig)
     stream: StreamConfig = field(default_factory=StreamConfig)
+    ros2: Ros2Config = field(default_factory=Ros2Config)
 
     def __post_init__(self) -> None:
         check_config(self)
@@ -510,6 +549,10 @@ LIMITS: dict[str, dict[str, Bounds]] = {
         "pending_results": _AT_LEAST_1, "stats_interval": _ABOVE_0, "linger": _AT_LEAST_0,
         "journal_segment_bytes": _AT_LEAST_1, "journal_max_bytes": _AT_LEAST_1, "max_streams": Bounds(1, 256),
         "max_streams_per_peer": Bounds(1, 256), "stream_expiry": _ABOVE_0, "max_time_jump": _ABOVE_0,
+    },
+    "ros2": {
+        "domain_id": Bounds(0, 232), "image_depth": Bounds(0, 10_000), "answer_depth": Bounds(1, 10_000),
+        "odometry_wait": _AT_LEAST_0, "camera_info_wait": _AT_LEAST_0, "max_extrapolation": _AT_LEAST_0,
     },
 }
 """Valid values of every numeric setting, by section and key (docs/config.md lists them)."""

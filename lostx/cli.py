@@ -26,7 +26,7 @@ from lostx.core.errors import LostxError  # noqa: E402
 from lostx.options import stop_signals_as_interrupt  # noqa: E402
 from lostx.stream.processes import exit_with_parent  # noqa: E402
 
-COMMANDS = ("demo", "map", "match", "eval", "serve", "replay", "listen", "keys", "backbones", "camera")
+COMMANDS = ("demo", "map", "match", "eval", "serve", "ros2", "replay", "listen", "keys", "backbones", "camera")
 
 
 class Parser(argparse.ArgumentParser):

@@ -71,10 +71,15 @@ def static_transforms(bags: list[BagFile], topics: dict[str, Topic]) -> dict[str
             continue
         for bag in bags:
             for _, decode in bag.messages(topic.name):
-                for stamped in decode().transforms:
-                    child, parent = _frame(stamped.child_frame_id), _frame(stamped.header.frame_id)
-                    tree[child] = (parent, transform_matrix(stamped.transform))
+                add_transforms(tree, decode())
     return tree
+
+
+def add_transforms(tree: dict[str, tuple[str, np.ndarray]], message: Any) -> None:
+    """Put the transforms of a ``tf2_msgs/TFMessage`` into ``tree`` (child frame -> parent, pose)."""
+    for stamped in message.transforms:
+        child, parent = _frame(stamped.child_frame_id), _frame(stamped.header.frame_id)
+        tree[child] = (parent, transform_matrix(stamped.transform))
 
 
 def _frame(name: str) -> str:
@@ -112,11 +117,17 @@ def bag_camera(bags: list[BagFile], topics: dict[str, Topic], image_topic: str,
     info = _first(bags, info_topic.name)
     if info is None:
         return BagCamera(None, f"{info_topic.name} has no messages: no camera geometry")
+    return camera_geometry(info, static_transforms(bags, topics), info_topic.name, pose_child, rectified)
+
+
+def camera_geometry(info: Any, tree: dict[str, tuple[str, np.ndarray]], info_topic: str, pose_child: str | None,
+                    rectified: bool) -> BagCamera:
+    """The camera geometry of a ``sensor_msgs/CameraInfo`` (from ``info_topic``) placed on the vehicle by the static
+    transforms ``tree`` (:func:`static_transforms`): a recording's or a live topic's alike."""
     intrinsics, width, height = camera_intrinsics(info, rectified)
     camera_frame = _frame(info.header.frame_id)
     if width <= 0 or height <= 0 or not camera_frame:
-        return BagCamera(None, f"{info_topic.name} gives no image size or frame_id: no camera geometry")
-    tree = static_transforms(bags, topics)
+        return BagCamera(None, f"{info_topic} gives no image size or frame_id: no camera geometry")
     candidates = [f for f in (BASE_FRAMES[0], pose_child, BASE_FRAMES[1]) if f]
     known = set(tree) | {parent for parent, _ in tree.values()}
     for base in candidates:
@@ -125,7 +136,7 @@ def bag_camera(bags: list[BagFile], topics: dict[str, Topic], image_topic: str,
         except InputError as exc:
             return BagCamera(None, f"no camera geometry: {exc}")
         if pose is not None:
-            source = f"{info_topic.name} and /tf_static ({camera_frame} in {base})"
+            source = f"{info_topic} and /tf_static ({camera_frame} in {base})"
             try:
                 geometry = CameraGeometry.from_pose(intrinsics, pose[:3, :3], pose[:3, 3], width, height,
                                                     source=source)
@@ -133,7 +144,7 @@ def bag_camera(bags: list[BagFile], topics: dict[str, Topic], image_topic: str,
                 return BagCamera(None, f"no camera geometry: {exc} (is {camera_frame} the camera's optical frame, "
                                        f"z forward, y down? give --camera-file otherwise)")
             return BagCamera(geometry)
-    return BagCamera(None, f"{info_topic.name} is there, but /tf_static has no transform from {camera_frame} to "
+    return BagCamera(None, f"{info_topic} is there, but /tf_static has no transform from {camera_frame} to "
                            f"{' or '.join(dict.fromkeys(candidates))}: no camera geometry (give --camera-file)")
 
 

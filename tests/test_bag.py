@@ -17,7 +17,7 @@ from lostx.replay.dataset import SourceOptions, detect_format, open_traverse
 from lostx.replay.folder import folder_traverse
 from lostx.replay.rosmsg import compressed_image_rgb, raw_image_rgb
 
-from rosbags import compressed_image, nav_sat_fix, odometry, raw_image, write_bag
+from bagtools import compressed_image, nav_sat_fix, odometry, raw_image, write_bag
 from test_cli import assert_one_line_error, lostx
 
 T0 = 1_700_000_000_000_000_000  # ns
@@ -219,7 +219,7 @@ def test_a_message_that_cannot_be_decoded_is_named(tmp_path):
     from mcap.well_known import SchemaEncoding
     from mcap.writer import Writer
 
-    from rosbags import definition
+    from bagtools import definition
 
     with open(tmp_path / "corrupt.mcap", "wb") as handle:
         writer = Writer(handle)

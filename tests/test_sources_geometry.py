@@ -21,7 +21,7 @@ from lostx.replay.camera import LiveCamera
 from lostx.replay.dataset import SourceOptions, open_traverse
 from lostx.replay.robotcar import robotcar_traverse
 
-from rosbags import camera_info, odometry, raw_image, tf_message, transform, write_bag
+from bagtools import camera_info, odometry, raw_image, tf_message, transform, write_bag
 from test_cli import assert_one_line_error, lostx
 
 SCENE = data_dir() / "nuscenes-frontrear"
