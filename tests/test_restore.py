@@ -112,22 +112,52 @@ def test_answers_and_states_of_an_incomplete_batch_are_cut_off_on_opening(tmp_pa
         store = StateStore(tmp_path)
         for seq in (1, 2, 3):
             journal.append(seq, b"answer %d" % seq)
-        journal.commit()
-        store.write([state("a", 2), state("b", 3)])
-        store.complete(3)
-        for seq in (4, 5):  # the next batch: killed after its answers and one state, before it completed
+        journal.flush()
+        store.complete(3, [state("a", 2), state("b", 3)])
+        journal.commit(3)
+        for seq in (4, 5):  # the next batch: answered and state "c" written, then "b" and "c" again...
             journal.append(seq, b"answer %d" % seq)
-        journal.commit()
-        store.write([state("a", 5)])
+        journal.flush()
+        store.complete(5, [state("c", 4), state("b", 5)])
+        journal.commit(5)
+        store.forget("a")  # ...then "a" expired, and the next batch was killed before its file was complete
+        journal.append(6, b"answer 6")
+        journal.flush()
+        assert journal.read(0, 10, 1 << 20)[-1] == b"answer 5"  # flushed is not shown: not durable yet
+    assert sorted(p.name for p in (tmp_path / "states").iterdir()) == [f"{3:020d}.batch", f"{5:020d}.batch"]
     with Journal(tmp_path) as journal:
         store = StateStore(tmp_path)
-        assert store.durable() == 3
-        journal.cut_after(3)
-        assert (journal.last, journal.read(0, 10, 1 << 20)) == (3, [b"answer 1", b"answer 2", b"answer 3"])
-        assert store.recover(3) == {"a": state("a", 2), "b": state("b", 3)}
-        journal.append(4, b"again")  # the journal goes on from the cut
+        assert store.durable() == 5
+        journal.cut_after(5)
+        assert journal.last == 5 and journal.read(3, 10, 1 << 20) == [b"answer 4", b"answer 5"]
+        assert store.recover(5) == {"a": state("a", 2), "b": state("b", 5), "c": state("c", 4)}
+        journal.append(6, b"again")  # the journal goes on from the cut
+        journal.flush()
+        store.forget("a")
+        store.complete(6, [state("c", 6)])
         journal.commit()
-    assert len(list((tmp_path / "states").glob("*.state"))) == 2
+    # Batch 3 held only "a"'s state, forgotten: no index names it any more.
+    assert sorted(p.name for p in (tmp_path / "states").iterdir()) == [f"{5:020d}.batch", f"{6:020d}.batch"]
+    with Journal(tmp_path) as journal:
+        assert StateStore(tmp_path).recover(journal.last) == {"b": state("b", 5), "c": state("c", 6)}
+
+
+def test_a_failed_batch_is_rolled_back_in_every_segment_it_reached(tmp_path):
+    with Journal(tmp_path, segment_bytes=64, max_bytes=1 << 20) as journal:
+        for seq in range(1, 4):
+            journal.append(seq, b"x" * 40)
+        journal.commit()
+        for seq in range(4, 9):  # spills over two more segments, then the batch fails
+            journal.append(seq, b"y" * 40)
+        journal.flush()
+        assert (journal.committed, journal.last, journal.segments) == (3, 8, 4)
+        journal.rollback()
+        assert (journal.committed, journal.last, journal.segments) == (3, 3, 2)
+        assert journal.read(0, 10, 1 << 20) == [b"x" * 40] * 3
+        journal.append(4, b"z" * 40)
+        journal.commit()
+    with Journal(tmp_path, segment_bytes=64, max_bytes=1 << 20) as journal:
+        assert journal.read(0, 10, 1 << 20) == [b"x" * 40] * 3 + [b"z" * 40]
 
 
 # -- restart mid-stream ---------------------------------------------------------------------------
@@ -172,13 +202,17 @@ def test_a_service_killed_mid_stream_carries_on_as_if_it_had_not_been(thumb_map,
 # -- a journal that cannot be written -------------------------------------------------------------
 
 
-def test_a_full_disk_refuses_frames_keeps_serving_and_loses_nothing_once_freed(thumb_map, winter100, uninterrupted,
-                                                                               tmp_path, monkeypatch):
+@pytest.mark.parametrize("failing", ["journal", "states"])
+def test_a_full_disk_is_said_at_once_serves_only_durable_answers_and_loses_nothing_once_freed(
+        thumb_map, winter100, uninterrupted, tmp_path, monkeypatch, failing):
+    """The disk fills after 20 answers: under the journal's next records, or (``states``) under the batch's states
+    while the journal's records still fit. Either way the frames in flight are refused at once with
+    ``journal_unwritable`` (no stall), nothing after answer 20 is served, counted or kept, and the stats say why."""
     full = threading.Event()
     write_all, write_whole = journal_module._write_all, states_module._write_whole
 
     def journal_write(fd: int, data: bytes) -> None:
-        if full.is_set():
+        if full.is_set() and failing == "journal":
             os.write(fd, data[: len(data) // 2])  # a record cut short, as a disk filling up leaves it
             raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
         write_all(fd, data)
@@ -200,6 +234,13 @@ def test_a_full_disk_refuses_frames_keeps_serving_and_loses_nothing_once_freed(t
     seen: dict[str, object] = {}
 
     def while_full(publisher: FramePublisher) -> None:
+        started = time.monotonic()
+        try:
+            wait_for(lambda: any(e.code == "journal_unwritable" for e in list(publisher.errors)), 5,
+                     "the frames in flight refused")
+            seen["heard_after_s"] = time.monotonic() - started
+        except AssertionError:
+            seen["heard_after_s"] = None  # a stall: the producer heard nothing
         wait_for(lambda: any("cannot write the journal" in line for line in logs), 30, "the failure reported")
         stats_before = len(listener.stats)
         seen["history"] = _fetch(service.history_endpoint, after=0)
@@ -209,8 +250,9 @@ def test_a_full_disk_refuses_frames_keeps_serving_and_loses_nothing_once_freed(t
             wait_for(lambda: not another.flush(0.2) and another.counts.refused >= 1, 10, "its frame refused")
             seen["refused"] = [(e.code, e.frame_id) for e in another.errors]
             time.sleep(1.0)
-            seen["stats"] = len(listener.stats) - stats_before
+            seen["stats"] = listener.stats[stats_before:]
             seen["acked"], seen["committed"] = publisher.counts.acked, service.journal.committed
+            seen["on_disk"] = _records(tmp_path / "journal")
             full.clear()
             seen["another"] = another.flush(30)  # sent again, and answered
 
@@ -229,21 +271,49 @@ def test_a_full_disk_refuses_frames_keeps_serving_and_loses_nothing_once_freed(t
             freer.join(60)
         wait_for(lambda: len(listener.results) == 61, 20, "61 results")
         assert thread.is_alive()  # up throughout
+    # No stall: the producer heard within a bounded time that its frames were not kept, and sent them again.
+    assert seen["heard_after_s"] is not None and seen["heard_after_s"] < 3.0
     assert seen["refused"] == [("journal_unwritable", 0)] and seen["another"]
-    # While the disk was full: the history still served, stats still went out, nothing acknowledged unwritten.
+    # While the disk was full: the history served, the stats went out, and all of them spoke of answers 1-20 alone,
+    # the journal's file held nothing after them, and the stats said why it was blocked.
     history = seen["history"]
     assert isinstance(history, messages.History) and (history.first, history.last) == (1, 20)
-    assert seen["stats"] >= 5 and seen["acked"] == seen["committed"] == 20
+    assert [msgpack.unpackb(item)["seq"] for item in history.items] == list(range(1, 21))
+    full_stats = seen["stats"]
+    assert len(full_stats) >= 5 and all(s.seq == 20 and s.journal.last == 20 for s in full_stats)
+    assert all(s.journal.blocked == "No space left on device" for s in full_stats)
+    assert full_stats[-1].journal.withdrawn >= 1 and full_stats[-1].answered == 20
+    assert seen["acked"] == seen["committed"] == 20 and seen["on_disk"] == list(range(1, 21))
     # Once freed: every frame answered once, in order, as the uninterrupted localizer answers it.
     cam = [r for r in listener.results if r.tag.stream == "cam"]
     assert [r.frame_id for r in cam] == list(range(60))
     assert [r.tag.seq for r in listener.results] == list(range(1, 62))
     assert all(same(r.to_dict(), e) for r, e in zip(cam, uninterrupted))
-    with Journal(tmp_path / "journal") as kept:
-        journaled = [msgpack.unpackb(p) for p in kept.read(0, 100, 1 << 30)]
+    assert listener.final.journal.blocked is None and listener.final.answered == 61
+    journaled = [msgpack.unpackb(p) for p in _payloads(tmp_path / "journal")]
     assert [a["frame_id"] for a in journaled if a["stream"] == "cam"] == list(range(60)) and len(journaled) == 61
     assert sum("cannot write the journal" in line and "No space left on device" in line for line in logs) == 1
     assert sum("is written again" in line for line in logs) == 1
+
+
+def _payloads(folder: Path) -> list[bytes]:
+    """Every answer a journal folder holds, read as a restarted service would (the journal's own lock released)."""
+    with Journal(folder) as kept:
+        return kept.read(0, 1 << 20, 1 << 40)
+
+
+def _records(folder: Path) -> list[int]:
+    """The sequence numbers of every whole record in the journal's segment files, read raw (durable or not)."""
+    seqs = []
+    for path in sorted(folder.glob("*.journal")):
+        data, pos = path.read_bytes(), 0
+        while pos + journal_module.HEADER.size <= len(data):
+            length, _, seq = journal_module.HEADER.unpack_from(data, pos)
+            if pos + journal_module.HEADER.size + length > len(data):
+                break
+            seqs.append(seq)
+            pos += journal_module.HEADER.size + length
+    return seqs
 
 
 def _fetch(endpoint: str, after: int) -> messages.History:
