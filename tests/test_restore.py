@@ -202,6 +202,75 @@ def test_a_service_killed_mid_stream_carries_on_as_if_it_had_not_been(thumb_map,
 # -- a journal that cannot be written -------------------------------------------------------------
 
 
+def test_a_service_killed_while_its_disk_is_full_takes_back_no_answer_anybody_heard_of(
+        thumb_map, winter100, uninterrupted, procs, tmp_path):
+    """Real processes. After 20 answers the service's disk fills, from outside (its file size limit set so that the
+    journal's next few records still fit but the states of their batch do not); a listener takes everything the
+    history serves meanwhile (section 7.4: fetching until nothing more comes); then kill -9, a restart on the same
+    journal, and every answer a listener holds must be the journal's answer of that number: none was served that a
+    restart took back or numbered again."""
+    resource = pytest.importorskip("resource")
+    frames, results = endpoints("tcp", tmp_path)
+    history = f"tcp://127.0.0.1:{free_port()}"
+    journal = tmp_path / "journal"
+    running = tmp_path / "running.jsonl"
+    service = lostx_command("serve", "--map", str(thumb_map.path), "--frames", frames, "--results", results,
+                            "--mode", "lossless", "--journal", str(journal), "--history", history,
+                            "--stats-interval", "0.2")
+    procs.start("listen", lostx_command("listen", results, "--history", history, "--jsonl", str(running),
+                                        "--count", str(FRAMES)))
+    procs.start("replay", lostx_command("replay", str(winter100), "--to", frames, "--quiet", "--wait", "60",
+                                        "--rate", "20", "--stream", "train-1"))
+    first = procs.start("serve", service)
+    stats = Collector(results, topics=("stats",))
+    try:
+        wait_for(lambda: len(read_jsonl(running)) >= 20, 60, "20 answers")
+        segment = max(journal.glob("*.journal"))
+        # A full disk: room for about four more answers' records, none for a batch's states (0.8 MB).
+        resource.prlimit(first.pid, resource.RLIMIT_FSIZE, (segment.stat().st_size + 4096, resource.RLIM_INFINITY))
+        time.sleep(3.0)
+        taken = _fetch_all(history)
+        session = stats.stats[-1].session
+        first.kill()  # SIGKILL with the disk full
+        first.wait(10)
+        while_full = [s for s in list(stats.stats) if s.session == session]
+        procs.start("serve-again", service)
+        assert procs.processes["replay"].wait(120) == 0
+        assert procs.processes["listen"].wait(60) == 0
+    finally:
+        stats.stop()
+    procs.stop("serve-again")
+    kept = {a["seq"]: a for a in (msgpack.unpackb(p) for p in _payloads(journal))}
+    assert sorted(kept) == list(range(1, FRAMES + 1))
+    fields = ("session", "frame_id", "match_index", "stream_seq")
+    assert taken and [a for a in taken if any(a[k] != kept[a["seq"]][k] for k in fields)] == []
+    rows = read_jsonl(running)
+    assert [r["seq"] for r in rows] == list(range(1, FRAMES + 1)) and [r["frame_id"] for r in rows] == \
+        list(range(FRAMES))
+    assert [r["seq"] for r in rows if any(r[k] != kept[r["seq"]][k] for k in fields)] == []
+    assert [r["frame_id"] for r, e in zip(rows, uninterrupted) if not same(r, e)] == []
+    # While full: the stats spoke of the durable answers alone, and said why nothing more was taken.
+    assert while_full and max(s.journal.last for s in while_full) == max(s.seq for s in while_full) == \
+        max(a["seq"] for a in taken)
+    assert while_full[-1].journal.blocked == "File too large"
+
+
+def _fetch_all(endpoint: str) -> list[dict]:
+    """Every answer a history serves, fetched as a listener resuming from the start does (section 7.4)."""
+    from lostx.stream.history import HistoryClient
+
+    client = HistoryClient(endpoint, timeout=10)
+    try:
+        answers: list[dict] = []
+        while True:
+            reply = client.fetch(answers[-1]["seq"] if answers else 0, 1024)
+            if not reply.items:
+                return answers
+            answers += [msgpack.unpackb(item) for item in reply.items]
+    finally:
+        client.close()
+
+
 @pytest.mark.parametrize("failing", ["journal", "states"])
 def test_a_full_disk_is_said_at_once_serves_only_durable_answers_and_loses_nothing_once_freed(
         thumb_map, winter100, uninterrupted, tmp_path, monkeypatch, failing):
