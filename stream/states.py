@@ -29,6 +29,7 @@ States are msgpack: numpy arrays as their dtype, shape and bytes (never pickle).
 from __future__ import annotations
 
 import os
+import shutil
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -36,6 +37,8 @@ from typing import Any
 import msgpack
 import numpy as np
 
+from lostx.core.budget import format_bytes
+from lostx.core.config import StreamConfig
 from lostx.core.outputs import sync_folder
 
 from .errors import StreamError
@@ -253,3 +256,26 @@ def _write_whole(path: Path, data: bytes, fsync: bool) -> None:
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
+
+
+def journal_space(config: StreamConfig, state_bytes: int) -> str | None:
+    """Whether the journal folder's disk has room for the journal at its bound (``journal_max_bytes``) and the
+    states of ``max_streams`` streams (each at most ``state_bytes``, twice over while a batch replaces them): None
+    where it does, else a line saying what is needed and what is free. What the journal holds already counts as
+    room."""
+    assert config.journal is not None
+    folder = Path(config.journal)
+    while not folder.exists() and folder != folder.parent:
+        folder = folder.parent
+    held = sum(p.stat().st_size for p in Path(config.journal).rglob("*") if p.is_file()) \
+        if Path(config.journal).is_dir() else 0
+    free = shutil.disk_usage(folder).free + held
+    states = 2 * config.max_streams * state_bytes
+    need = config.journal_max_bytes + states
+    if free >= need:
+        return None
+    return (f"the journal {config.journal} may need {format_bytes(need)} (journal_max_bytes "
+            f"{format_bytes(config.journal_max_bytes)}, and the states of {config.max_streams} streams, "
+            f"{format_bytes(state_bytes)} each at most, twice over while a batch replaces them), and its disk has "
+            f"{format_bytes(free)}: when the disk is full, frames are refused (journal_unwritable) until there is "
+            f"room again; lower journal_max_bytes or max_streams, or free some space")
