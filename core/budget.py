@@ -91,21 +91,31 @@ def needed_bytes(config: Config, n_frames: int, streams: int = 1) -> int:
 
 
 def available_bytes() -> int:
-    """Memory the machine can give now without swapping: ``MemAvailable`` (Linux), else the physical memory, capped
-    by the process's address-space limit where one is set."""
-    available = None
-    try:
-        with open("/proc/meminfo") as handle:
-            for line in handle:
-                if line.startswith("MemAvailable:"):
-                    available = int(line.split()[1]) * 1024
-                    break
-    except OSError:
-        pass
+    """Memory the machine can give now without swapping: ``MemAvailable`` (Linux), else the physical memory; within
+    what is left of the process's address-space limit where one is set (``ulimit -v``)."""
+    info = _proc_status("/proc/meminfo")
+    available = info.get("MemAvailable")
     if available is None:
         available = os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
     limit = resource.getrlimit(resource.RLIMIT_AS)[0]
-    return available if limit == resource.RLIM_INFINITY else min(available, limit)
+    if limit != resource.RLIM_INFINITY:
+        available = min(available, max(0, limit - _proc_status("/proc/self/status").get("VmSize", 0)))
+    return available
+
+
+def _proc_status(path: str) -> dict[str, int]:
+    """The ``Name: value kB`` lines of a /proc file, in bytes (empty where there is none)."""
+    out: dict[str, int] = {}
+    try:
+        with open(path) as handle:
+            for line in handle:
+                name, _, value = line.partition(":")
+                parts = value.split()
+                if len(parts) == 2 and parts[1] == "kB" and parts[0].isdigit():
+                    out[name] = int(parts[0]) * 1024
+    except OSError:
+        pass
+    return out
 
 
 def check_memory(config: Config, n_frames: int, streams: int = 1, budget: int | None = None,
