@@ -8,8 +8,12 @@ came back.
 
 from __future__ import annotations
 
+import dataclasses
 import errno
 import os
+import shutil
+import signal
+import subprocess
 import threading
 import time
 from pathlib import Path
@@ -19,6 +23,7 @@ import numpy as np
 import pytest
 import zmq
 
+from lostx.core.budget import format_bytes, state_bytes
 from lostx.core.config import Config, StreamConfig
 from lostx.core.errors import InputError
 from lostx.core.localizer import Localizer
@@ -30,7 +35,7 @@ from lostx.stream.journal import Journal
 from lostx.stream.messages import Limits
 from lostx.stream.producer import FramePublisher
 from lostx.stream.service import LocalizerService
-from lostx.stream.states import SavedState, StateFileError, StateStore, pack, unpack
+from lostx.stream.states import SavedState, StateFileError, StateStore, journal_space, pack, unpack
 from lostx.stream.streams import localizer_factory
 
 from streamtools import (  # noqa: F401  (fixtures)
@@ -463,3 +468,37 @@ def test_a_stream_placed_by_visual_odometry_carries_over(robotcar, mosaic, tmp_p
     after.restore(unpack(pack(before.state())))
     answers = [after.step(frame).summary() for frame in front[25:]]
     assert all(same(a, e) for a, e in zip(answers, expected[25:]))
+
+
+def test_the_journal_disk_is_checked_at_start_up_for_the_journal_and_the_states(thumb_map, tmp_path):
+    """The journal's bound and the states of every stream it may hold are compared with the disk's free space when
+    the service starts: too little is a warning saying what is needed, what is free and what to change."""
+    free = shutil.disk_usage(tmp_path).free
+    roomy = StreamConfig(journal=tmp_path / "journal", journal_max_bytes=free // 4, max_streams=1)
+    assert journal_space(roomy, state_bytes=1000) is None
+    states_too_large = dataclasses.replace(roomy, max_streams=256)
+    assert journal_space(states_too_large, state_bytes=free // 256) is not None
+    config = tmp_path / "big.toml"
+    config.write_text(f"[stream]\njournal_max_bytes = {2 * free}\n")
+    frames, results = endpoints("tcp", tmp_path)
+    proc = subprocess.Popen([*lostx_command("serve", "--map", str(thumb_map.path), "--frames", frames, "--results",
+                                            results, "--journal", str(tmp_path / "journal"), "--config", str(config))],
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        lines = []
+        while not any("live mode" in line for line in lines):
+            line = proc.stderr.readline()
+            assert line, "".join(lines)
+            lines.append(line)
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(30) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    warning = next(line for line in lines if line.startswith("lostx: warning: the journal"))
+    state = format_bytes(state_bytes(Config(), thumb_map.n_frames))
+    assert f"(journal_max_bytes {format_bytes(2 * free)}, and the states of 64 streams, {state} each at most, " \
+           f"twice over while a batch replaces them), and its disk has " in warning
+    assert warning.rstrip().endswith("when the disk is full, frames are refused (journal_unwritable) until there is "
+                                     "room again; lower journal_max_bytes or max_streams, or free some space")
