@@ -136,10 +136,11 @@ class JournalWriter(threading.Thread):
                     self.states.probe(self._probe_bytes)
                     self.failure = None
         except OSError as exc:  # a full or failing disk: undone, and the answers handed over so far dropped
-            self._probe_bytes = max(PROBE_BYTES, sum(len(a.payload) + len(a.state.localizer if a.state else b"")
-                                                     for a in answers))
             self.failure = f"{exc.strerror or exc}"
             if answers:
+                # The disk is tried again with as many bytes as this batch needed.
+                self._probe_bytes = max(PROBE_BYTES, sum(len(a.payload) + len(a.state.localizer if a.state else b"")
+                                                         for a in answers))
                 self.epoch += 1
                 try:
                     self.journal.rollback()

@@ -292,7 +292,8 @@ def test_a_full_disk_is_said_at_once_serves_only_durable_answers_and_loses_nothi
         write_all(fd, data)
 
     def state_write(path: Path, data: bytes, fsync: bool) -> None:
-        if full.is_set():
+        # With the journal's records still fitting, the disk has 100 kB left: less than a batch's states.
+        if full.is_set() and (failing == "journal" or len(data) > 100_000):
             raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
         write_whole(path, data, fsync)
 
