@@ -168,8 +168,10 @@ def test_a_failed_batch_is_rolled_back_in_every_segment_it_reached(tmp_path):
 # -- restart mid-stream ---------------------------------------------------------------------------
 
 
-def test_a_service_killed_mid_stream_carries_on_as_if_it_had_not_been(thumb_map, winter100, uninterrupted, procs,
-                                                                        tmp_path):
+def _lossless_run(thumb_map, winter100: Path, procs, tmp_path: Path, rate: float) -> tuple[str, str, list[str], Path]:
+    """A listener and a replay of ``winter100`` (stream train-1) started for a lossless service with a journal in
+    tmp_path/journal: the results and history endpoints, the service's command line (to start, and start again) and
+    the listener's JSON-lines file."""
     frames, results = endpoints("tcp", tmp_path)
     history = f"tcp://127.0.0.1:{free_port()}"
     jsonl = tmp_path / "listen.jsonl"
@@ -179,7 +181,14 @@ def test_a_service_killed_mid_stream_carries_on_as_if_it_had_not_been(thumb_map,
     procs.start("listen", lostx_command("listen", results, "--history", history, "--jsonl", str(jsonl),
                                         "--count", str(FRAMES)))
     procs.start("replay", lostx_command("replay", str(winter100), "--to", frames, "--quiet", "--wait", "60",
-                                        "--rate", "40", "--stream", "train-1"))
+                                        "--rate", str(rate), "--stream", "train-1"))
+    return results, history, service, jsonl
+
+
+
+def test_a_service_killed_mid_stream_carries_on_as_if_it_had_not_been(thumb_map, winter100, uninterrupted, procs,
+                                                                        tmp_path):
+    results, history, service, jsonl = _lossless_run(thumb_map, winter100, procs, tmp_path, rate=40)
     first = procs.start("serve", service)
     wait_for(lambda: len(read_jsonl(jsonl)) >= 35, 60, "35 answers from the first service")
     first.kill()  # SIGKILL: no flushing, no goodbye
@@ -215,17 +224,8 @@ def test_a_service_killed_while_its_disk_is_full_takes_back_no_answer_anybody_he
     journal, and every answer a listener holds must be the journal's answer of that number: none was served that a
     restart took back or numbered again."""
     resource = pytest.importorskip("resource")
-    frames, results = endpoints("tcp", tmp_path)
-    history = f"tcp://127.0.0.1:{free_port()}"
+    results, history, service, running = _lossless_run(thumb_map, winter100, procs, tmp_path, rate=20)
     journal = tmp_path / "journal"
-    running = tmp_path / "running.jsonl"
-    service = lostx_command("serve", "--map", str(thumb_map.path), "--frames", frames, "--results", results,
-                            "--mode", "lossless", "--journal", str(journal), "--history", history,
-                            "--stats-interval", "0.2")
-    procs.start("listen", lostx_command("listen", results, "--history", history, "--jsonl", str(running),
-                                        "--count", str(FRAMES)))
-    procs.start("replay", lostx_command("replay", str(winter100), "--to", frames, "--quiet", "--wait", "60",
-                                        "--rate", "20", "--stream", "train-1"))
     first = procs.start("serve", service)
     stats = Collector(results, topics=("stats",))
     try:
