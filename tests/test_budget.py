@@ -105,7 +105,7 @@ def test_the_largest_window_allowed_is_refused_at_once_with_its_memory(command, 
     assert len(lines) == 1, proc.stderr
     streams = "64 streams" if command[0] == "serve" else "1 stream"
     assert re.fullmatch(rf"lostx: error: \[sequence\] length \(--window\) 100000 would need [\d.]+ [PT]B \(at most, "
-                        rf"{streams} over a map of 3576 frames\), more than the [\d.]+ GB of memory available: the "
+                        rf"{streams} over a map of 3576 frames\), more than the [\d.]+ [kMG]B of memory available: the "
                         rf"largest window that fits is \d+ frames", lines[0]), lines[0]
     assert seconds < 30
 
@@ -122,7 +122,8 @@ def test_a_signal_while_the_service_starts_ends_it_within_a_second(signum, thumb
     """A window whose calibration takes minutes to measure on this map (and fits): the signal comes while it is
     being measured, and the service is gone within a second, saying so."""
     proc = subprocess.Popen([sys.executable, "-m", "lostx.cli", "serve", "--map", str(thumb_map.path), "--window",
-                             "97", "--frames", "tcp://127.0.0.1:0", "--results", "tcp://127.0.0.1:0"],
+                             "97", "--max-streams", "1", "--frames", "tcp://127.0.0.1:0", "--results",
+                             "tcp://127.0.0.1:0"],
                             stderr=subprocess.PIPE, text=True)
     try:
         time.sleep(6.0)
