@@ -111,7 +111,8 @@ def add_config_options(parser: argparse.ArgumentParser, matching: bool = True) -
     group.add_argument("--top-k", type=whole_number(1), metavar="K",
                        help=f"candidates verified per query (default {DEFAULTS.verify.top_k})")
     group.add_argument("--window", type=window_length, metavar="L",
-                       help=f"frames in the sequence filter's window (default {DEFAULTS.sequence.length})")
+                       help=f"frames in the sequence filter's window (default {DEFAULTS.sequence.length}); refused "
+                            f"before any work, naming the largest that fits, where its memory would not fit")
     group.add_argument("--no-tracker", action="store_true", help="answer without the route tracker")
     group.add_argument("--index", choices=["auto", "on", "off"],
                        help="search the map's approximate index: auto (default: maps of at least "
@@ -236,14 +237,20 @@ def add_stream_options(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--max-message-bytes", type=int, metavar="BYTES", help="largest frame message (default 16 MiB)")
     group.add_argument("--stats-interval", type=float, metavar="S", help="seconds between stats messages (default 1)")
     group.add_argument("--max-streams", type=int, metavar="N",
-                       help="streams (a localizer state each) at one time; one more is refused (default 64)")
+                       help=f"streams (a localizer state each) at one time, at most {_most('stream', 'max_streams')} "
+                            f"(default {DEFAULTS.stream.max_streams}): a frame starting one more is refused "
+                            f"(too_many_streams) unless an idle stream has expired; a producer holding "
+                            f"{DEFAULTS.stream.max_streams_per_peer} ([stream] max_streams_per_peer) that starts "
+                            f"another forgets its least recently used idle one. Refused at start-up where their "
+                            f"memory would not fit")
     group.add_argument("--stream-expiry", type=float, metavar="S",
                        help="forget a stream after S seconds without a frame (default 300)")
     journal = parser.add_argument_group("journal (lossless mode needs one, or --no-journal)")
     choice = journal.add_mutually_exclusive_group()
     choice.add_argument("--journal", type=Path, metavar="DIR",
                         help="write every answer to the journal in DIR before acknowledging its frame; "
-                             "listeners resume from it (lostx listen --resume)")
+                             "listeners resume from it (lostx listen --resume), a restarted service carries every "
+                             "stream on; while its disk is full, frames are refused (journal_unwritable)")
     choice.add_argument("--no-journal", action="store_true",
                         help="lossless without a journal: answers a listener had not read when it died are lost")
     journal.add_argument("--history", metavar="ENDPOINT",

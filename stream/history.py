@@ -93,7 +93,7 @@ def serve_history(socket: zmq.Socket, journal: Journal, session: str, errors: Co
                 raise ProtocolError("multipart", f"expected one message part, got {len(body)}")
             fetch = wire.decode_fetch(body[0], HISTORY_LIMITS)
             items = journal.read(fetch.after, fetch.max, HISTORY_BYTES)
-            reply = wire.encode_history(History(session, journal.id, fetch.after, journal.first, journal.last,
+            reply = wire.encode_history(History(session, journal.id, fetch.after, journal.first, journal.committed,
                                                 tuple(items)))
         except ProtocolError as exc:
             errors[exc.code] += 1

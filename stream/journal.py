@@ -14,8 +14,13 @@ Sequence numbers are consecutive across segments. Records are only ever
 appended; a new segment starts when the current one reaches its size, and the
 oldest segments are deleted to keep the journal within its bound.
 
-One thread appends and commits while another reads (a lock keeps the segment
-index whole); readers see only what is committed, that is, durable.
+One thread appends, flushes and commits while another reads (a lock keeps the
+segment index whole). Flushing makes the appended answers survive a crash;
+committing makes them visible: readers see only what is committed. The service
+commits a batch of answers only once everything that goes with it is on disk
+too (the states of its streams, :mod:`lostx.stream.states`), so what a reader
+sees is never taken back, and a batch that cannot be completed is rolled back
+(cut off the file) as if it had never been appended.
 
 A record is written with one ``write`` call, so a killed service leaves whole
 records behind; a crash of the machine can leave a torn record at the end,
@@ -83,7 +88,7 @@ class Journal:
         self._dirty = False
         self._index_lock = threading.Lock()  # the segment index, between the writing and the reading thread
         self.committed = 0
-        """The newest answer made durable by :meth:`commit` (all those found on opening count)."""
+        """The newest answer committed (all those found on opening count): what readers see."""
         self._lock_fd: int | None = None
         try:
             self.folder.mkdir(parents=True, exist_ok=True)
@@ -102,10 +107,10 @@ class Journal:
 
     @property
     def first(self) -> int:
-        """Sequence number of the oldest answer held (0 when empty)."""
+        """Sequence number of the oldest committed answer held (0 when none)."""
         with self._index_lock:
             held = [s for s in self._segments if s.count]
-            return held[0].first if held else 0
+            return held[0].first if held and held[0].first <= self.committed else 0
 
     @property
     def last(self) -> int:
@@ -150,53 +155,60 @@ class Journal:
             segment.size += len(record)
         self._dirty = True
 
-    def commit(self) -> None:
-        """Make everything appended so far durable (fsync, where configured), and readable."""
+    def flush(self) -> None:
+        """Make everything appended so far survive a crash (fsync, where configured), without showing it to
+        readers: :meth:`commit` does that, once what goes with the answers is on disk too."""
         if self._dirty and self._fd is not None and self.fsync:
             os.fdatasync(self._fd)
         self._dirty = False
-        self.committed = self.last
+
+    def commit(self, seq: int | None = None) -> None:
+        """Flush, and show readers the answers up to ``seq`` (default: all appended)."""
+        self.flush()
+        self.committed = self.last if seq is None else min(seq, self.last)
 
     def rollback(self) -> None:
-        """Forget the answers appended since the last commit, in the index and on disk: after a failed write
-        (a full disk, say) the journal is as it was committed, and the same answers may be appended again."""
-        with self._index_lock:
-            segment = self._segments[-1] if self._segments else None
-            if segment is None:
-                return
-            while segment.count and segment.first + segment.count - 1 > self.committed:
-                segment.size = segment.offsets.pop()
-            if self._fd is not None:
-                try:
-                    os.ftruncate(self._fd, segment.size)
-                except OSError as exc:
-                    raise JournalError(f"journal {segment.path}: cannot cut off a failed write ({exc.strerror})") \
-                        from None
-        self._dirty = False
+        """Forget the answers appended since the last commit, in the index and on disk (in every segment they
+        reached): after a failed write (a full disk, say) the journal is as it was committed, and the next answers
+        are appended after it."""
+        try:
+            self._cut(self.committed)
+        except OSError as exc:
+            raise JournalError(f"journal {self.folder}: cannot cut off a failed write ({exc.strerror or exc})") \
+                from None
 
     def cut_after(self, seq: int) -> None:
         """Delete the answers after ``seq``: written by a service that stopped before it acknowledged or
         published them (their batch never completed)."""
-        if self.last <= seq:
-            return
+        if self.last > seq:
+            self._cut(seq)
+            self.committed = self.last
+
+    def _cut(self, seq: int) -> None:
+        """The journal as it was with ``seq`` its last answer: later segments deleted, the last one truncated
+        (also of a record whose write failed halfway, which the index never counted)."""
         with self._index_lock:
-            if self._fd is not None:
-                os.close(self._fd)
-                self._fd = None
             while len(self._segments) > 1 and self._segments[-1].first > seq:
-                self._segments.pop().path.unlink()
+                if self._fd is not None:
+                    os.close(self._fd)
+                    self._fd = None
+                self._segments.pop().path.unlink(missing_ok=True)
+            if not self._segments:
+                return
             segment = self._segments[-1]
             keep = max(0, seq + 1 - segment.first)
             if keep < segment.count:
                 segment.size = segment.offsets[keep]
                 del segment.offsets[keep:]
-                os.truncate(segment.path, segment.size)
-            self._fd = os.open(segment.path, os.O_WRONLY | os.O_APPEND)
+            if self._fd is None:
+                self._fd = os.open(segment.path, os.O_WRONLY | os.O_APPEND)
+            os.ftruncate(self._fd, segment.size)
         self._sync_folder()
-        self.committed = self.last
+        self._dirty = False
+        self.committed = min(self.committed, self.last)
 
     def _start_segment(self, seq: int) -> None:
-        self.commit()
+        self.flush()
         with self._index_lock:
             self._rotate(seq)
 
@@ -254,7 +266,7 @@ class Journal:
 
     def close(self) -> None:
         if self._fd is not None:
-            self.commit()
+            self.flush()
             os.close(self._fd)
             self._fd = None
         if self._lock_fd is not None:

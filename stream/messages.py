@@ -225,13 +225,18 @@ class Result:
 
 @dataclass(frozen=True)
 class JournalInfo:
-    """What the service's journal holds: answers ``first`` to ``last`` (0, 0 when empty)."""
+    """What the service's journal holds: answers ``first`` to ``last`` (0, 0 when empty), all of them durable."""
 
     id: str
     first: int
     last: int
     bytes: int
     segments: int
+    blocked: str | None = None
+    """Why the journal cannot be written now (a full disk, say): frames are refused meanwhile; None while it is."""
+    withdrawn: int = 0
+    """Answers taken back since the service started because the journal could not make them durable (their frames
+    refused with ``journal_unwritable``, to be sent again)."""
 
 
 @dataclass(frozen=True)

@@ -49,6 +49,13 @@ class FrameSchedule:
         self._slots[job.stream.name] = job  # a stream waiting already keeps its turn
         return superseded
 
+    def drain(self) -> list[Job]:
+        """Take every frame waiting (they are refused), in the order they would have gone."""
+        jobs = list(self._queue) + list(self._slots.values())
+        self._queue.clear()
+        self._slots.clear()
+        return jobs
+
     def next(self, resent: Callable[[Job, bool], None]) -> Job | None:
         """Lossless: the oldest frame not answered before; live: the newest frame of the next stream.
 

@@ -22,9 +22,16 @@ listener that missed answers (it was stopped, killed, or restarted, or the
 service was) fetches them from the history socket; the numbers go on across
 restarts of the service. Each stream's localizer state is saved with the
 answers (:mod:`lostx.stream.states`), so a restarted service carries every
-stream on as if it had not stopped. A journal that cannot be written (a full
-disk) refuses new frames with ``journal_unwritable`` until the writes succeed
-again; the service stays up, and nothing is acknowledged that is not on disk.
+stream on as if it had not stopped. Listeners, the history and the stats see
+only durable answers, so no answer anybody could have heard of is ever taken
+back or numbered again.
+
+A journal that cannot be written (a full disk) is said at once: the answers
+not yet durable are withdrawn (their frames refused with ``journal_unwritable``,
+their numbers given again, each stream they advanced put back to its state at
+the last durable answer, so that the frames, sent again, are answered exactly
+as they would have been), new frames are refused alike until the disk takes a
+write again, ``stats`` say why the journal is blocked, and the service stays up.
 
 :meth:`LocalizerService.stop` (from a signal handler or another thread) lets
 the worker finish the frame in hand, publishes its answer and the final stats,
@@ -78,6 +85,23 @@ JOURNAL_TAIL = 4096
 """Answers read back from the journal at start, to recognise frames the previous service answered."""
 MAX_STREAMS = 256
 """Upper limit of max_streams: the per-stream stats must fit one message map."""
+
+
+@dataclass(frozen=True)
+class _Unconfirmed:
+    """An answer handed to the journal and not yet durable: what it takes to withdraw it."""
+
+    seq: int
+    identity: bytes
+    frame_id: int
+    stream: str
+    stream_seq: int
+    key: tuple[str, int] | None
+    result: bool
+    """A result (else an error that answers the frame, of ``code``)."""
+    code: str
+    state: SavedState | None
+    """The stream's state after it, where saved."""
 
 
 @dataclass
@@ -151,6 +175,12 @@ class LocalizerService:
         self._saved: dict[str, SavedState] = {}  # streams of the previous service not seen again yet
         self._unsaved: set[str] = set()  # streams whose state cannot be saved (said once each)
         self._journal_failing = False
+        self._epoch = 0  # the journal's failures the loop has withdrawn answers for
+        self._withdrawing = False  # a failure to withdraw answers for, once the worker is idle
+        self._unconfirmed: deque[_Unconfirmed] = deque()  # answers handed to the journal, not yet durable
+        self._durable_states: dict[str, SavedState] = {}  # each stream's state at its last durable answer
+        self._durable_answers: dict[str, int] = {}  # each stream's answers up to its last durable one
+        self._withdrawn = 0
         self._refused_from: dict[str, int] = {}  # streams with frames refused while the journal failed: the first
         self.endpoints: tuple[str, str] | None = None
         """The frames and results endpoints as bound."""
@@ -258,6 +288,8 @@ class LocalizerService:
             # Answers of a batch the previous service never completed were neither acknowledged nor published:
             # they go, and their frames, sent again, are answered from the states that go with the journal.
             self.journal.cut_after(durable)
+        else:
+            self._states.complete(self.journal.last, [])  # the mark of what is durable, before any answer
         self._saved = self._states.recover(self.journal.last)
         self._next_seq = self.journal.last + 1
         self._durable = self.journal.committed
@@ -355,6 +387,8 @@ class LocalizerService:
             for identity, version in self._waiting.items():
                 self._reply(identity, wire.encode_ready(self._ready(), version))
             self._waiting.clear()
+        if self._withdrawing and self._busy is None:
+            self._withdraw()
         if dispatch:
             self._dispatch()
         self._release()
@@ -373,7 +407,7 @@ class LocalizerService:
     def _dispatch(self) -> None:
         """Give the worker the next frame if it is free and nothing holds the service back."""
         assert self._worker is not None
-        if self._busy is not None or self._listeners() < self.min_listeners:
+        if self._busy is not None or self._withdrawing or self._listeners() < self.min_listeners:
             return
         if len(self._outgoing) >= self.config.pending_results:
             return  # a listener (lossless) or the disk (with a journal) is slow: wait for it, drop nothing
@@ -459,7 +493,10 @@ class LocalizerService:
         key = frame_key(job.message) if self.lossless else None
         if self._writer is not None:
             # Journaled: acknowledged as soon as it is durable, whether or not a listener has it.
-            self._writer.write(seq, payload, self._saved_state(answer, seq))
+            saved = self._saved_state(answer, seq)
+            self._writer.write(seq, payload, saved, self._epoch)
+            self._unconfirmed.append(_Unconfirmed(seq, job.identity, job.message.id, state.name, state.answers, key,
+                                                  answer.estimate is not None, answer.code, saved))
             if reply is not None:
                 self._acks.append((seq, job.identity, reply, key))
             reply, key = None, None
@@ -492,15 +529,86 @@ class LocalizerService:
             error = self._writer.error
             text = error.strerror if isinstance(error, OSError) else str(error)
             raise JournalError(f"cannot write the journal {self.config.journal}: {text}")
+        epoch, failure = self._writer.epoch, self._writer.failure  # read before durable: it only grows
         self._durable = self._writer.durable
-        failure = self._writer.failure
+        while self._unconfirmed and self._unconfirmed[0].seq <= self._durable:
+            done = self._unconfirmed.popleft()
+            if done.state is not None:
+                self._durable_states[done.stream] = done.state
+            self._durable_answers[done.stream] = done.stream_seq
+        if epoch > self._epoch:
+            self._withdrawing = True
         if failure is not None and not self._journal_failing:
-            self.log(f"cannot write the journal {self.config.journal}: {failure}; new frames are refused "
-                     f"(journal_unwritable) and the answers not yet written wait, tried again every {RETRY_S:g} s")
+            self.log(f"cannot write the journal {self.config.journal}: {failure}; the answers not yet on disk are "
+                     f"withdrawn and their frames, and new ones, refused (journal_unwritable) until a write "
+                     f"succeeds, tried every {RETRY_S:g} s")
         elif failure is None and self._journal_failing:
             self.log(f"the journal {self.config.journal} is written again (answers up to {self._durable}); "
                      f"taking frames again")
         self._journal_failing = failure is not None
+
+    def _withdraw(self) -> None:
+        """Take back every answer the journal could not make durable: its frame is refused with
+        ``journal_unwritable`` (the producer sends it again), its number given to the next answer, and each stream it
+        advanced goes back to its state at its last durable answer. Frames queued behind them are refused alike.
+        Runs while the worker is idle, so that no localizer is stepped meanwhile."""
+        assert self._writer is not None and self._busy is None
+        self._take_durable()
+        reason = self._writer.failure or "it failed"
+        text = f"the journal cannot be written ({reason}): this frame's answer was not kept; send it again later"
+        rewind: set[str] = set()
+        for item in self._unconfirmed:
+            if item.result:
+                self.counters.answered -= 1
+            else:
+                self.counters.errors[item.code] -= 1
+            state = self.streams.peek(item.stream)
+            if state is not None:
+                if item.result:
+                    state.counts.answered -= 1
+                else:
+                    state.counts.errors -= 1
+            self._withdraw_frame(item.identity, item.stream, item.frame_id, item.key, text)
+            rewind.add(item.stream)
+        self._withdrawn += len(self._unconfirmed)
+        withdrawn = len(self._unconfirmed)
+        self._unconfirmed.clear()
+        self._outgoing = deque(o for o in self._outgoing if o.seq <= self._durable)
+        self._acks = deque(a for a in self._acks if a[0] <= self._durable)
+        queued = self._schedule.drain()
+        for job in queued:
+            job.stream.in_service -= 1
+            self._withdraw_frame(job.identity, job.stream.name, job.message.id, None,
+                                 "the journal cannot be written: this frame was not taken; send it again later")
+        for name in rewind:
+            state = self.streams.peek(name)
+            if state is not None:
+                self._rewind(state)
+        self._next_seq = self._durable + 1
+        self._epoch = self._writer.epoch
+        self._withdrawing = False
+        self.log(f"{withdrawn} answer(s) after answer {self._durable} withdrawn and {len(queued)} queued frame(s) "
+                 f"refused (journal_unwritable): their producers send them again")
+
+    def _withdraw_frame(self, identity: bytes, stream: str, frame_id: int, key: tuple[str, int] | None,
+                        text: str) -> None:
+        self._refuse(identity, "journal_unwritable", text, frame_id)
+        if key is not None:
+            self._schedule.answered.discard(key)
+            self._schedule.unacked.discard(key)
+        first = self._refused_from.get(stream)
+        if self.lossless:
+            self._refused_from[stream] = frame_id if first is None else min(first, frame_id)
+
+    def _rewind(self, state: StreamState) -> None:
+        """Put a stream back to its state at its last durable answer (afresh where it has none)."""
+        saved = self._durable_states.get(state.name)
+        if saved is not None:
+            self._restore(state, saved)
+        else:
+            state.localizer.reset()
+            state.last_timestamp = None
+        state.answers = self._durable_answers.get(state.name, 0)
 
     def _is_durable(self, seq: int) -> bool:
         return self._writer is None or seq <= self._durable
@@ -564,7 +672,9 @@ class LocalizerService:
                 self.log(f"a producer holding {self.config.max_streams_per_peer} streams (max_streams_per_peer) "
                          f"started stream {state.name!r}: its least recently used stream is forgotten")
         if new and name in self._saved:
-            self._restore(state, self._saved.pop(name))
+            saved = self._saved.pop(name)
+            self._restore(state, saved)
+            self._durable_states[name], self._durable_answers[name] = saved, state.answers
         self.counters.received += 1
         state.counts.received += 1
         self.counters.missing += state.saw(message.id)
@@ -587,7 +697,8 @@ class LocalizerService:
         else:
             self._refused_from.pop(name, None)
             return False
-        self._refused_from[name] = frame_id if first is None else min(first, frame_id)
+        if self.lossless:  # a live producer never sends a frame again: nothing to keep the order of
+            self._refused_from[name] = frame_id if first is None else min(first, frame_id)
         if len(self._refused_from) > 4 * MAX_STREAMS:  # a flood of stream ids: the oldest is let go
             del self._refused_from[next(iter(self._refused_from))]
         self._refuse(identity, "journal_unwritable", text, frame_id)
@@ -696,7 +807,8 @@ class LocalizerService:
         journal = None
         if self.journal is not None:
             j = self.journal
-            journal = JournalInfo(j.id, j.first, j.committed, j.nbytes, j.segments)
+            blocked = self._writer.failure if self._writer is not None else None
+            journal = JournalInfo(j.id, j.first, j.committed, j.nbytes, j.segments, blocked, self._withdrawn)
         return Stats(
             session=self.session, mode=self.config.mode, uptime_s=c.uptime, received=c.received,
             answered=c.answered, dropped=c.dropped, missing=c.missing, duplicates=c.duplicates,
@@ -709,6 +821,8 @@ class LocalizerService:
 
     def _forget(self, name: str) -> None:
         self._unsaved.discard(name)
+        self._durable_states.pop(name, None)
+        self._durable_answers.pop(name, None)
         if self._writer is not None:
             self._writer.forget(name)
 
@@ -735,9 +849,13 @@ class LocalizerService:
         final = self.stats(final=True)
         if self._results is not None:
             if self._writer is not None:
-                self._writer.close()  # everything answered is written and flushed
+                self._writer.close()  # everything answered is written and flushed, where the disk takes it
                 try:
                     self._take_durable()
+                    if self._withdrawing or self._unconfirmed:
+                        self._withdrawing = False
+                        if self._busy is None:
+                            self._withdraw()
                 except JournalError as exc:
                     self.log(str(exc))
             self._release()

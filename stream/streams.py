@@ -155,6 +155,10 @@ class StreamTable:
         state.peer = peer
         return state
 
+    def peek(self, name: str) -> StreamState | None:
+        """The stream's state where it has one (makes none)."""
+        return self._states.get(name)
+
     def held_by(self, peer: bytes) -> list[StreamState]:
         """The streams whose last frame came from ``peer``."""
         return [s for s in self._states.values() if s.peer == peer]
@@ -193,6 +197,12 @@ class AnsweredIds:
     def __contains__(self, key: tuple[str, int]) -> bool:
         entry = self._ids.get(key[0])
         return entry is not None and key[1] in entry[1]
+
+    def discard(self, key: tuple[str, int]) -> None:
+        """Forget that a frame was answered (its answer was withdrawn): sent again, it is answered again."""
+        entry = self._ids.get(key[0])
+        if entry is not None:
+            entry[1].discard(key[1])
 
     def add(self, key: tuple[str, int]) -> None:
         stream, frame_id = key

@@ -133,7 +133,7 @@ _STATS: Schema = {
     "final": (_BOOL, False), "seq": (_UINT, True), "journal": (_MAP.or_nil(), True), "streams": (_MAP, True),
 }
 _JOURNAL: Schema = {"id": (_STR, True), "first": (_UINT, True), "last": (_UINT, True), "bytes": (_UINT, True),
-                    "segments": (_UINT, True)}
+                    "segments": (_UINT, True), "blocked": (_STR.or_nil(), False), "withdrawn": (_UINT, False)}
 _STREAM_STATS: Schema = {
     **{name: (_UINT, True) for name in ("received", "answered", "errors", "dropped", "missing", "duplicates",
                                         "restarts", "queued")},
@@ -357,7 +357,8 @@ def read_stats(message: Mapping[str, Any]) -> Stats:
     journal = f.value("journal")
     if journal is not None:
         j = Fields(journal, _JOURNAL, strict=False, where="journal: ")
-        journal = JournalInfo(j.value("id"), j.value("first"), j.value("last"), j.value("bytes"), j.value("segments"))
+        journal = JournalInfo(j.value("id"), j.value("first"), j.value("last"), j.value("bytes"), j.value("segments"),
+                              j.value("blocked"), j.value("withdrawn", 0))
     streams: dict[str, StreamStats] = {}
     for name, values in f.value("streams").items():
         if not isinstance(values, dict):

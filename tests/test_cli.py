@@ -14,6 +14,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from streamtools import link_frames, thumb_map  # noqa: F401  (fixture)
+
 
 def lostx(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "lostx.cli", *map(str, args)], capture_output=True, text=True,
@@ -442,3 +444,18 @@ def test_frames_unlike_the_maps_get_one_warning_line_each(cli_map, nordland, tmp
                                   "greyscale (the map's frames: colour)")
     assert warnings[1].startswith("lostx: warning: in frames 0 to 4 the network finds ")
     assert len(list(csv.DictReader((tmp_path / "m.csv").open()))) == 6  # answered all the same
+
+
+def test_the_summary_says_why_no_answer_is_localized(thumb_map, nordland, tmp_path):
+    """Nordland's winter frames against the summer map one at a time: the map is long enough to be sure, and no
+    answer is confident enough. The summary says so, with the highest confidence, as the CSV has it."""
+    winter = link_frames(sorted((nordland / "winter").iterdir())[:60], tmp_path / "winter")
+    proc = lostx("match", thumb_map.path, winter, "--out", tmp_path / "m.csv", "--quiet")
+    assert proc.returncode == 0, proc.stderr
+    with open(tmp_path / "m.csv") as handle:
+        rows = list(csv.DictReader(handle))
+    best = max(rows, key=lambda r: float(r["confidence"]))
+    assert float(best["confidence"]) < 0.999
+    assert (f"; 0 localized (no answer reached the confidence a localized one needs, 0.999 ([decision] "
+            f"min_confidence): the highest was {best['confidence']}, frame {best['query_index']}'s); wrote") \
+        in proc.stdout

@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import re
 import struct
 import tracemalloc
+from pathlib import Path
 
 import cv2
 import msgpack
@@ -195,8 +197,8 @@ def test_result_carries_every_summary_field():
 def test_stats_round_trip():
     streams = {"a": StreamStats(10, 8, 1, 1, 0, 0, 0, 1, 0.25), "b": StreamStats(3, 3, 0, 0, 2, 1, 1, 0, 12.5)}
     stats = Stats("s", "live", 1.5, 10, 8, 2, 0, 0, 1, {"bad_type": 1}, 1, 0, 2, 1,
-                  {"step": {"n": 8, "p50": 100.0}}, final=True, seq=11, journal=JournalInfo("j", 1, 11, 9000, 1),
-                  streams=streams)
+                  {"step": {"n": 8, "p50": 100.0}}, final=True, seq=11,
+                  journal=JournalInfo("j", 1, 11, 9000, 1, "No space left on device", 3), streams=streams)
     got = wire.decode_published(b"stats", wire.encode_stats(stats), LIMITS)
     assert got == stats
     # A count is sent as an integer, not a float.
@@ -204,6 +206,11 @@ def test_stats_round_trip():
     assert type(got.latency_ms["step"]["n"]) is int
     no_journal = dataclasses.replace(stats, journal=None, streams={})
     assert wire.decode_published(b"stats", wire.encode_stats(no_journal), LIMITS) == no_journal
+    # A journal map of a service that says nothing of a blocked journal (an older one) is one that is written.
+    older = msgpack.unpackb(wire.encode_stats(stats))
+    del older["journal"]["blocked"], older["journal"]["withdrawn"]
+    got = wire.decode_published(b"stats", msgpack.packb(older), LIMITS)
+    assert got.journal == JournalInfo("j", 1, 11, 9000, 1, None, 0)
 
 
 def test_errors_that_answer_frames_carry_their_place_and_refusals_do_not():
@@ -498,3 +505,115 @@ def test_the_bytes_in_the_protocol_doc_are_what_lostx_reads():
         decoded = {"hello": wire.decode_request, "frame": wire.decode_request, "ack": wire.decode_reply,
                    "ready": wire.decode_reply, "fetch": wire.decode_fetch}[message["type"]](bytes.fromhex(hex_bytes.replace("\n", " ")), LIMITS)
         assert decoded is not None
+
+
+# -- the document ----------------------------------------------------------------------------------
+
+DOC = Path(__file__).resolve().parents[1] / "docs" / "protocol.md"
+
+
+def _section(doc: str, heading: str) -> str:
+    """The text of the section whose heading line starts with ``heading``, up to the next heading."""
+    match = re.search(rf"^#+ {re.escape(heading)}.*?$(.*?)(?=^#)", doc, re.S | re.M)
+    assert match, heading
+    return match.group(1)
+
+
+def _row(section: str, name: str) -> str:
+    return next(line for line in section.splitlines() if line.startswith(f"| `{name}`"))
+
+
+def _versions(row: str) -> list[int]:
+    """The versions a table's ``v`` row names, in its order: the one lostx sends first."""
+    return [int(v) for v in re.findall(r"`(\d)`", row)]
+
+
+def test_the_protocol_doc_gives_each_message_the_versions_lostx_sends_and_reads():
+    """Each message's ``v`` row names the version lostx sends it in first, then the others a lostx peer sends or
+    reads it in; the title and the versioning section name the newest and those read."""
+    doc = DOC.read_text()
+    assert doc.startswith(f"# lostx wire protocol (schema version {messages.VERSION})\n")
+    versioning = _section(doc, "12. Versioning")
+    assert f"`v` is the schema version, `{messages.VERSION}` here. lostx reads versions " \
+           f"{', '.join(map(str, messages.VERSIONS[:-1]))} and {messages.VERSIONS[-1]};" in " ".join(versioning.split())
+
+    def sent(data: bytes) -> int:
+        return msgpack.unpackb(data)["v"]
+
+    def read(decode, message: dict) -> set[int]:
+        ok = set()
+        for version in range(1, messages.VERSION + 2):
+            try:
+                decode(msgpack.packb({**message, "v": version}), LIMITS)
+                ok.add(version)
+            except ProtocolError:
+                pass
+        return ok
+
+    hello = msgpack.unpackb(wire.encode_hello("cam"))
+    frame = msgpack.unpackb(wire.encode_frame(Frame(1, np.zeros((2, 2, 3), np.uint8)), stream="cam"))
+    ready = Ready("s", "lossless", 4, 1 << 24, 1 << 24, "j", "tcp://127.0.0.1:5557")
+    replies = {version: (sent(wire.encode_ready(ready, version)), sent(wire.encode_ack(Ack("s", 1, "cam"), version)))
+               for version in messages.VERSIONS}
+    fetch = msgpack.unpackb(wire.encode_fetch(Fetch(0, 10)))
+    stats = Stats("s", "live", 1.0, 0, 0, 0, 0, 0, 0, {}, 0, 0, 0, 0, {})
+    expected = {
+        "3.1 `hello`": (hello["v"], read(wire.decode_request, hello)),
+        "3.2 `frame`": (frame["v"], read(wire.decode_request, frame)),
+        "3.3 `ready`": (replies[messages.VERSION][0], {r[0] for r in replies.values()}),
+        "3.4 `ack`": (replies[messages.VERSION][1], {r[1] for r in replies.values()}),
+        "3.5 `error`": (sent(wire.encode_error(ErrorMessage("bad_value", "x"))), None),
+        "4.1 `result`": (sent(wire.encode_result({}, "s", Tag("cam", 1, 1))), None),
+        "4.3 `stats`": (sent(wire.encode_stats(stats)), None),
+        "7.2 `fetch`": (fetch["v"], read(wire.decode_fetch, fetch)),
+        "7.3 `history`": (sent(wire.encode_history(History("s", "j", 0, 0, 0, ()))), None),
+    }
+    # What may change within a version is said of the newest.
+    assert set(re.findall(r"within\s+(?:schema\s+)?version\s+(\d)", doc, re.I)) == {str(messages.VERSION)}
+    for heading, (first, others) in expected.items():
+        named = _versions(_row(_section(doc, heading), "v"))
+        assert named[0] == first, (heading, named)
+        assert set(named) == (others if others is not None else {first}), (heading, named)
+
+
+def test_the_protocol_doc_lists_the_fields_and_codes_lostx_sends():
+    doc = DOC.read_text()
+    stats = Stats("s", "live", 1.0, 0, 0, 0, 0, 0, 0, {}, 0, 0, 0, 0, {}, journal=JournalInfo("j", 0, 0, 0, 0))
+    sent = msgpack.unpackb(wire.encode_stats(stats))
+    table = re.findall(r"^\| ((?:`\w+`(?:, )?)+) \|", _section(doc, "4.3 `stats`"), re.M)
+    assert {name for cell in table for name in re.findall(r"`(\w+)`", cell)} == set(sent)
+    journal = re.search(r"`\{(.*?)\}`", _row(_section(doc, "4.3 `stats`"), "journal")).group(1)
+    assert [field.split(":")[0] for field in journal.split(", ")] == list(sent["journal"])
+    ready = re.findall(r"^\| ((?:`\w+`(?:, )?)+) \|", _section(doc, "3.3 `ready`"), re.M)
+    assert {name for cell in ready for name in re.findall(r"`(\w+)`", cell)} == \
+        set(msgpack.unpackb(wire.encode_ready(Ready("s", "live", 0, 1, 1))))
+    codes = re.findall(r"^\| `(\w+)` \|", _section(doc, "9. Error codes"), re.M)
+    assert codes == list(messages.ERROR_CODES)
+
+
+def test_the_protocol_docs_examples_are_what_lostx_sends():
+    """Every example of a message lostx sends is, field for field, what lostx's encoder makes of its content, and
+    every frame example reads as the frame lostx would send for it."""
+    blocks = re.findall(r"```\n(\{.*?\})\n((?:[0-9a-f]{2}[ \n])+)```", DOC.read_text(), re.S)
+    kinds = []
+    for _, hex_bytes in blocks:
+        data = bytes.fromhex(hex_bytes.replace("\n", " "))
+        message = msgpack.unpackb(data)
+        kind = message["type"]
+        kinds.append(kind)
+        if kind == "hello":
+            again = wire.encode_hello(message.get("stream"), message.get("name"))
+        elif kind == "ready":
+            fields = {f.name: message[f.name] for f in dataclasses.fields(Ready) if f.name in message}
+            again = wire.encode_ready(Ready(**fields), message["v"])
+        elif kind == "ack":
+            again = wire.encode_ack(Ack(message["session"], message["frame_id"], message.get("stream")), message["v"])
+        elif kind == "fetch":
+            again = wire.encode_fetch(Fetch(message["after"], message["max"]))
+        else:
+            read = wire.decode_request(data, LIMITS)
+            again = wire.encode_frame(read.to_frame(), read.encoding, stream=read.stream)
+            assert wire.decode_request(again, LIMITS) == read
+            continue
+        assert msgpack.unpackb(again) == message, kind
+    assert sorted(set(kinds)) == ["ack", "fetch", "frame", "hello", "ready"]

@@ -60,6 +60,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from lostx.core.budget import check_memory
     from lostx.core.outputs import check_output_folder
     from lostx.evaluation.datasets import open_pair
     from lostx.evaluation.methods import evaluate_pair, paired_comparisons
@@ -88,6 +89,7 @@ def run(args: argparse.Namespace) -> int:
         options=source_options_from_args(args), reverse_query=args.reverse,
     )
     pair = with_camera_files(pair, args.reference_camera_file, args.query_camera_file)
+    check_memory(config, len(pair.reference))
     print_notes(pair.notes)
     runs, truths = evaluate_pair(pair, config, cache, args.methods, args.modes, args.tolerances, args.unit,
                                  progress=not args.quiet, true_heading="opposite" if args.opposite else "same")

@@ -26,6 +26,7 @@ from lostx.options import (
 )
 
 if TYPE_CHECKING:
+    from lostx.core.config import Config
     from lostx.core.decide.estimate import Estimate
     from lostx.core.maps.refmap import ReferenceMap
 
@@ -63,6 +64,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
+    from lostx.core.budget import check_memory
     from lostx.core.errors import InputError, LostxError, MapError
     from lostx.core.localizer import Localizer
     from lostx.core.outputs import check_output_file
@@ -73,6 +75,7 @@ def run(args: argparse.Namespace) -> int:
     config = dataclasses.replace(config, sequence=dataclasses.replace(config.sequence, enabled=args.sequence))
     check_output_file(args.out, "--out")
     refmap = ReferenceMap.open(args.map)
+    check_memory(config, refmap.n_frames)
     if args.descriptor and args.descriptor != refmap.kind:
         raise InputError(f"{args.map} is a {refmap.kind} map, not {args.descriptor}")
     built_with = (refmap.backbone or {}).get("name")
@@ -113,9 +116,9 @@ def run(args: argparse.Namespace) -> int:
                 raise type(exc)(f"{exc} ({answers.kept()})") from None
         elapsed = time.perf_counter() - start
         answers.complete = True
+        too_short = localizer.calibration.too_short(args.sequence, config.decision.min_confidence)
         print(summary_line(estimates, elapsed, args.out, window if args.sequence else None,
-                           localizer.calibration.too_short(args.sequence, config.decision.min_confidence)),
-              flush=True)
+                           none_localized(estimates, config, too_short)), flush=True)
         # The results are written: the web viewer may stay up as long as the user likes.
         serve_until_interrupted(sink)
     return 0
@@ -179,11 +182,38 @@ def csv_row(name: str, estimate: Estimate, refmap: ReferenceMap, sequence: bool)
     return row
 
 
+def none_localized(estimates: list[Estimate], config: Config, too_short: str | None) -> str | None:
+    """Why no answer is ``localized``, where none is and some were past the sequence window's warm-up (whose
+    answers never are, as the summary says): the map too short to be sure (``too_short``, from its calibration), no
+    answer confident enough (the highest confidence), the confident ones unsure of their heading, or each of those
+    disagreeing with the route tracker."""
+    if any(e.state == "localized" for e in estimates):
+        return None
+    answered = [e for e in estimates if not e.warming_up]
+    if not answered:
+        return None
+    if too_short:
+        return too_short
+    bar, heading_bar = config.decision.min_confidence, config.heading.min_confidence
+    best = max(answered, key=lambda e: e.confidence)
+    confident = [e for e in answered if e.confidence >= bar]
+    if not confident:
+        return (f"no answer reached the confidence a localized one needs, {bar:g} ([decision] min_confidence): "
+                f"the highest was {best.confidence:.4f}, frame {best.frame_id}'s")
+    sure = [e for e in confident if e.heading_confidence >= heading_bar]
+    if not sure:
+        surest = max(e.heading_confidence for e in confident)
+        return (f"{len(confident)} answer(s) reached the confidence of {bar:g}, none with its heading at least "
+                f"{heading_bar:g} probable ([heading] min_confidence; the surest {surest:.3f})")
+    return (f"{len(sure)} answer(s) reached the confidence of {bar:g} with a sure heading, and each disagreed with "
+            f"the route tracker's prediction (--no-tracker answers without it)")
+
+
 def summary_line(estimates: list[Estimate], elapsed: float, out: Path, window: int | None = None,
-                 too_short: str | None = None) -> str:
+                 reason: str | None = None) -> str:
     """One line: queries, time per frame and per stage (stages that ran), what was localized; ``window``
-    is the sequence window (None: single-frame answers); ``too_short``: why the map lets no answer be
-    ``localized``, where it does not."""
+    is the sequence window (None: single-frame answers); ``reason``: why no answer is ``localized``, where
+    none is (:func:`none_localized`)."""
     n = len(estimates)
     stages = {k: sum(e.latency_ms.get(k, 0.0) for e in estimates) / n for k in estimates[0].latency_ms}
     detail = ", ".join(f"{k} {v:.1f}" for k, v in stages.items() if k != "total" and v > 0)
@@ -192,7 +222,7 @@ def summary_line(estimates: list[Estimate], elapsed: float, out: Path, window: i
     warming = sum(bool(e.warming_up) for e in estimates)
     if window is not None and warming:
         states += f", {warming} not_localized while the {window}-frame sequence window filled"
-    if too_short:
-        states += f" ({too_short})"
+    if reason:
+        states += f" ({reason})"
     return (f"matched {n} queries in {elapsed:.1f} s ({1e3 * elapsed / n:.0f} ms per frame; {detail} ms); "
             f"{states}; wrote {out}")

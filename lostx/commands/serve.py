@@ -49,6 +49,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from lostx.core.budget import check_memory, state_bytes
     from lostx.core.errors import InputError
     from lostx.core.outputs import check_output_file, check_output_folder
     from lostx.core.maps.refmap import ReferenceMap
@@ -56,6 +57,7 @@ def run(args: argparse.Namespace) -> int:
     from lostx.stream.service import LocalizerService
     from lostx.stream.sinks import JsonlSink
     from lostx.stream.sockets import ServerKeys
+    from lostx.stream.states import journal_space
     from lostx.stream.streams import localizer_factory
 
     stop = _SignalStop()
@@ -78,6 +80,12 @@ def run(args: argparse.Namespace) -> int:
                 raise InputError("CurveZMQ needs both --curve-secret and --curve-clients")
             keys = ServerKeys(args.curve_secret, args.curve_clients)
         refmap = ReferenceMap.open(args.map)
+        check_memory(config, refmap.n_frames, config.stream.max_streams, streams_setting="[stream] max_streams "
+                     "(--max-streams)")
+        if config.stream.journal is not None:
+            short = journal_space(config.stream, state_bytes(config, refmap.n_frames))
+            if short is not None:
+                _warn(short)
         new_localizer = localizer_factory(refmap, config)
         sinks = [resolve_sink(spec) for spec in args.sink]
         if args.jsonl:
@@ -99,11 +107,18 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _warn(text: str) -> None:
+    import sys
+
+    print(f"lostx: warning: {text}", file=sys.stderr, flush=True)
+
+
 class _SignalStop:
     """SIGINT/SIGTERM stop the service gracefully: the frame in hand is finished and flushed.
 
-    Installed before the map loads, so a signal that arrives while starting up still
-    ends in a clean stop instead of a traceback."""
+    Installed before the map loads. While the service is starting (the map opening, its calibration measured,
+    the network loaded) there is nothing to finish: a signal then interrupts the start at once, wherever it is
+    (``lostx: interrupted``, exit status 130)."""
 
     def __init__(self) -> None:
         self.service: LocalizerService | None = None
@@ -117,8 +132,9 @@ class _SignalStop:
 
     def _on_signal(self, signum: int, _frame: object) -> None:
         self.signal_name = signal.Signals(signum).name
-        if self.service is not None:
-            self.service.stop(self.signal_name)
+        if self.service is None:
+            raise KeyboardInterrupt(f"{self.signal_name} while starting; nothing was served")
+        self.service.stop(self.signal_name)
 
     def __enter__(self) -> "_SignalStop":
         self._previous = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
