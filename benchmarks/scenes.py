@@ -212,8 +212,8 @@ def scored(refmap: ReferenceMap, run: Run, matches: list[FrameMatch], config: Co
 
 
 def figure(results: dict, scene: str, rate: str = "2 Hz") -> int:
-    """A setting's figure on a scene: Recall@1 summed over the headline pairings, single frame and sequence."""
-    return sum(results[scene][rate][p][m].right for p in HEADLINE for m in MODES)
+    """A setting's figure on a scene: Recall@1 summed over the headline pairings run, single frame and sequence."""
+    return sum(results[scene][rate][p][m].right for p in HEADLINE if p in results[scene][rate] for m in MODES)
 
 
 def chosen_on(results: dict[str, dict], scene: str) -> str:

@@ -6,8 +6,8 @@ rear cameras (S1, S2 headline; S3, S4 beside), single frame and with the sequenc
 rule makes the default (the least short of the family's best on its worse scene, :func:`scenes.rule`). Recall@1 at 7.5 m of the look-at points; heading: frames answered
 ``opposite`` (the truth).
 
-    python benchmarks/study_layout.py [--families cues,voters,...] [--rates "2 Hz,1 Hz"] [--quick]
-        [--out benchmarks/results/study_layout.json]
+    python benchmarks/study_layout.py [--families cues,voters,...] [--rates "2 Hz,1 Hz"] [--pairings S1,S2,S3,S4]
+        [--quick] [--out benchmarks/results/study_layout.json]
 """
 
 from __future__ import annotations
@@ -129,12 +129,15 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--families", default=",".join(FAMILIES), help="comma-separated: " + ", ".join(FAMILIES))
     parser.add_argument("--rates", default="2 Hz", help="comma-separated: " + ", ".join(RATES))
+    parser.add_argument("--pairings", default=",".join(HEADLINE),
+                        help="comma-separated, of " + ", ".join(PAIRINGS) + " (the rule reads S1 and S2; "
+                             "study_scenes.py runs all four with the settings chosen)")
     parser.add_argument("--quick", action="store_true", help="two variants, S1 only: a check that the study runs")
     parser.add_argument("--out", type=Path, default=RESULTS / "study_layout.json")
     args = parser.parse_args()
     rates = tuple(r.strip() for r in args.rates.split(","))
     families = {f: FAMILIES[f] for f in args.families.split(",")}
-    pairings = tuple(PAIRINGS)
+    pairings = tuple(p.strip() for p in args.pairings.split(","))
     if args.quick:
         families = {f: {n: FAMILIES[f][n] for n in names} for f, names in QUICK.items()}
         pairings, rates = ("S1",), ("2 Hz",)
