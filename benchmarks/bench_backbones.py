@@ -13,7 +13,7 @@ feature), the largest probability difference and the share of equal labels,
 over the twenty frames. The machine is shared, so the load average before and
 after is recorded.
 
-    python benchmarks/bench_backbones.py [--backbones NAME ...] [--repeat 30] [--threads 2] [--window 3]
+    python benchmarks/bench_backbones.py [--backbones NAME ...] [--repeat 30] [--threads 2] [--window 3] [--quick]
                                          [--out benchmarks/results/backbones.json]
 """
 
@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from common import RESULTS, print_table, summary, time_call, write_json
+from common import parse, print_table, summary, time_call, write_json
 from lostx.core import Config, Localizer, LostDescriber, ReferenceMap, build_map, load_backbone
 from lostx.core.backbones import Backbone
 from lostx.core.backbones.espnet_onnx import export_onnx
@@ -55,6 +55,11 @@ def network_times(backbones: dict[str, Backbone], images: list[np.ndarray], repe
         for name, backbone in backbones.items():
             samples[name] += time_call(lambda: backbone(image), 1, warmup=0)
     return {name: summary(times) for name, times in samples.items()}
+
+
+def network_time(backbone: Backbone, images: list[np.ndarray], repeat: int) -> dict[str, float]:
+    """One backbone's time per frame (for a study of one backbone's settings)."""
+    return network_times({"": backbone}, images, repeat)[""]
 
 
 def agreement(reference: Backbone, other: Backbone, images: list[np.ndarray]) -> dict[str, float]:
@@ -117,8 +122,9 @@ def main() -> None:
     parser.add_argument("--repeat", type=int, default=30, help="timed frames per backbone")
     parser.add_argument("--threads", type=int, default=2, help="CPU threads for the networks")
     parser.add_argument("--window", type=int, default=3, help="frames in the sequence filter's window")
-    parser.add_argument("--out", type=Path, default=RESULTS / "backbones.json")
-    args = parser.parse_args()
+    args = parse(parser, "backbones", quick=f"{BUILT_IN[0]} only, 3 timed frames")
+    if args.quick:
+        args.backbones, args.repeat = BUILT_IN[:1], 3
 
     root = data_dir() / "robotcar-daynight"
     images = [frame.image for folder in ("day", "night") for frame in folder_traverse(root / folder)]

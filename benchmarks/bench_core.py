@@ -7,7 +7,7 @@ queried with the real night frames; and, for a like-for-like comparison with
 the authors' released code, the descriptor and verification stages on synthetic
 tensors of their shapes (2048 channels on a 20 x 31 grid, 20 classes).
 
-    python benchmarks/bench_core.py [--frames 1000] [--out benchmarks/results/core.json]
+    python benchmarks/bench_core.py [--frames 1000] [--repeat 50] [--quick] [--out benchmarks/results/core.json]
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from common import RESULTS, print_table, summary, time_call, write_json
+from common import parse, print_table, summary, time_call, write_json
 from lostx.core import Config, Frame, Localizer, LostDescriber, ReferenceMap, load_backbone
 from lostx.core.describe.keypoints import KeypointEvidence, frame_evidence
 from lostx.core.describe.lost import class_means, lost_descriptor
@@ -126,8 +126,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=1000, help="reference frames in the map")
     parser.add_argument("--repeat", type=int, default=50, help="timed queries per stage")
-    parser.add_argument("--out", type=Path, default=RESULTS / "core.json")
-    args = parser.parse_args()
+    args = parse(parser, "core", quick="a 100-frame map, 5 timed queries per stage")
+    if args.quick:
+        args.frames, args.repeat = 100, 5
 
     rows, real = real_stages(args.frames, args.repeat)
     print_table(f"MOSAIC, real frames, {args.frames}-frame map: ms per query frame",

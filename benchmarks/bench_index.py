@@ -12,7 +12,7 @@ Reported: Recall@10 of the index's own top 10 against exact search, and of lostx
 index's shortlist ranked again by exact distance); ms per query; build seconds; bytes per frame.
 usearch is optional: without it its row says it was not measured.
 
-    python benchmarks/bench_index.py [--size 100000] [--queries 200]
+    python benchmarks/bench_index.py [--size 100000] [--queries 200] [--real MAP] [--quick] [--out benchmarks/results/index.json]
 """
 
 from __future__ import annotations
@@ -27,8 +27,8 @@ from typing import Callable
 
 import numpy as np
 
-from bench_localizer import BLOCK, DEFAULT_REAL, DescriptorMap, real_map, sampled
-from common import RESULTS, print_table, summary, write_json
+from bench_localizer import BLOCK, QUICK_REAL_FRAMES, DescriptorMap, chosen_real, sampled
+from common import parse, print_table, summary, write_json
 from lostx.core.config import SearchConfig
 from lostx.core.maps.index import BUILD_BREADTH, NEIGHBOURS, ApproximateIndex, build_index
 from lostx.core.match.search import CandidateSearch
@@ -72,10 +72,13 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--size", type=int, default=100000)
     parser.add_argument("--queries", type=int, default=200)
-    parser.add_argument("--real", type=Path, default=DEFAULT_REAL, help="a LoST map to sample descriptors around")
-    parser.add_argument("--out", type=Path, default=RESULTS / "index.json")
-    args = parser.parse_args()
-    real = np.asarray(real_map(args.real).descriptors, dtype=np.float32)
+    parser.add_argument("--real", type=Path, help="a LoST map to sample descriptors around (default: as "
+                                                  "bench_localizer.py's)")
+    args = parse(parser, "index", quick=f"2,000 descriptors around {QUICK_REAL_FRAMES} real frames, 20 queries")
+    if args.quick:
+        args.size, args.queries = 2000, 20
+    with tempfile.TemporaryDirectory() as scratch:
+        real = np.array(chosen_real(args.real, args.quick, Path(scratch)).descriptors, dtype=np.float32)
     rng = np.random.default_rng(args.size)
     descriptors = np.empty((args.size, real.shape[1]), np.float32)
     for start in range(0, args.size, BLOCK):
@@ -85,11 +88,12 @@ def main() -> None:
     rows: dict[str, dict] = {}
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
+        stored = descriptors.astype(np.float16)  # as a map stores them: what a search through the index re-ranks
         t = time.perf_counter()
-        info = build_index(descriptors.astype(np.float16), "lost", folder)
+        info = build_index(stored, "lost", folder)
         built = time.perf_counter() - t
         faiss_index = ApproximateIndex(folder / info.file, args.size)
-        refs = DescriptorMap(descriptors, faiss_index, folder)
+        refs = DescriptorMap(descriptors, stored, faiss_index, folder)
         exact = CandidateSearch(refs, SearchConfig(index="off"))  # type: ignore[arg-type]
         lostx_search = CandidateSearch(refs, SearchConfig(index="on"))  # type: ignore[arg-type]
         truth, exact_ms = timed(lambda q: exact.nearest(q, K)[0], queries)

@@ -11,7 +11,7 @@ search and verification: "layout compare" is their own time there, "layout" choo
 comparison added to the frame's (waiting for it, then ranking by both cues); "after the network" is the frame's
 wall-clock time less the network's.
 
-    python benchmarks/bench_layout.py [--frames 1000] [--out benchmarks/results/layout.json]
+    python benchmarks/bench_layout.py [--frames 1000] [--repeat 80] [--quick] [--out benchmarks/results/layout.json]
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from common import RESULTS, print_table, summary, write_json
+from common import parse, print_table, summary, write_json
 from lostx.core import Config, Localizer, LostDescriber, ReferenceMap, build_map, load_backbone
 from lostx.core.layout.classes import ROAD, LayoutClasses
 from lostx.core.layout.grid import pack_both
@@ -93,8 +93,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=1000, help="reference frames in the map")
     parser.add_argument("--repeat", type=int, default=80, help="timed query frames")
-    parser.add_argument("--out", type=Path, default=RESULTS / "layout.json")
-    args = parser.parse_args()
+    args = parse(parser, "layout", quick="a 100-frame map, each of the 40 query frames once")
+    if args.quick:
+        args.frames, args.repeat = 100, 1
     backbone = load_backbone()
     describer = LostDescriber(backbone)
     rng = np.random.default_rng(0)

@@ -20,7 +20,7 @@ and medians are reported.
 - journal: the same with `--journal DIR` (every answer written and fsync'ed before its frame is
   acknowledged) against `--no-journal`, as ratios within the run.
 
-    python benchmarks/bench_load.py [--frames 1200] [--streams 1,4,16] [--rounds 2] [--out benchmarks/results/load.json]
+    python benchmarks/bench_load.py [--frames 1200] [--streams 1,4,16] [--rounds 2] [--quick] [--out benchmarks/results/load.json]
 """
 
 from __future__ import annotations
@@ -39,7 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
-from common import RESULTS, cpu_seconds, print_table, write_json
+from common import cpu_seconds, parse, print_table, write_json
 from lostx.core import Frame
 from lostx.core.build import build_map
 from lostx.core.paths import data_dir
@@ -145,8 +145,9 @@ def main() -> int:
     parser.add_argument("--frames", type=int, default=1200, help="frames per run, shared by the streams (default 1200)")
     parser.add_argument("--streams", default="1,4,16", help="concurrent streams per run (default 1,4,16)")
     parser.add_argument("--rounds", type=int, default=2, help="interleaved rounds of all runs (default 2)")
-    parser.add_argument("--out", type=Path, default=RESULTS / "load.json")
-    args = parser.parse_args()
+    args = parse(parser, "load", quick="20 frames a run, 1 and 2 streams, one round")
+    if args.quick:
+        args.frames, args.streams, args.rounds = 20, "1,2", 1
     counts = [int(n) for n in args.streams.split(",")]
     load_start = os.getloadavg()[0]
     winter = list(folder_traverse(data_dir() / "nordland-64x32" / "winter"))

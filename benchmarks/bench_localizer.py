@@ -31,6 +31,7 @@ Stages, per frame:
 frame is the map's descriptors (float16), the index and the per-frame evidence of the real map.
 
     python benchmarks/bench_localizer.py [--sizes 1000 10000 100000 1000000] [--steps 200] [--real MAP] [--repeat-places]
+                                         [--quick] [--out benchmarks/results/localizer.json]
 """
 
 from __future__ import annotations
@@ -47,7 +48,7 @@ from pathlib import Path
 
 import numpy as np
 
-from common import RESULTS, print_table, summary, time_call, write_json
+from common import parse, print_table, summary, time_call, write_json
 from lostx.core import Config, Frame, Localizer, ReferenceMap
 from lostx.core.decide.calibration import Calibration
 from lostx.core.config import HeadingConfig, SearchConfig, SequenceConfig
@@ -64,17 +65,31 @@ STRETCH = 1000
 """Consecutive real frames in each stretch of a sampled map."""
 BLOCK = 64 * STRETCH
 DEFAULT_REAL = Path.home() / ".cache" / "lostx-bench" / "nordland-summer-lost"
+QUICK_REAL_FRAMES = 200
+"""Nordland summer frames in a quick run's real map (the whole route's takes minutes to build)."""
+FIXED_QUERIES = 50
+"""Real query frames timed for the descriptor and verification (10 in a quick run)."""
 
 
-def real_map(path: Path) -> ReferenceMap:
-    """The real LoST map the descriptors are sampled around (built from the Nordland summer frames once)."""
+def real_map(path: Path, frames: int | None = None) -> ReferenceMap:
+    """The real LoST map the descriptors are sampled around: built from the Nordland summer frames (the first
+    ``frames`` of them, where given) the first time it is asked for."""
     if not (path / "manifest.json").is_file():
         from lostx.core.build import build_map
         from lostx.replay.folder import folder_traverse
 
         path.parent.mkdir(parents=True, exist_ok=True)
-        build_map(folder_traverse(data_dir() / "nordland-64x32" / "summer"), path, overwrite=True)
+        summer = folder_traverse(data_dir() / "nordland-64x32" / "summer")
+        build_map(summer if frames is None else summer.subset(range(frames)), path, overwrite=True)
     return ReferenceMap.open(path)
+
+
+def chosen_real(real: Path | None, quick: bool, scratch: Path) -> ReferenceMap:
+    """``--real``; without it, the whole route's map (built once in ``DEFAULT_REAL``), or a quick run's own small
+    one in ``scratch``."""
+    if real is None and quick:
+        return real_map(scratch / "real", QUICK_REAL_FRAMES)
+    return real_map(real or DEFAULT_REAL)
 
 
 def sampled(real: np.ndarray, rows: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -229,7 +244,7 @@ def network_free_stages(real: ReferenceMap, queries: int) -> dict:
     winter = folder_traverse(data_dir() / "nordland-64x32" / "winter")
     descriptor, verify = [], []
     for frame in winter.subset(range(0, queries * 10, 10)):
-        described = matcher.describe(frame.image)
+        described = matcher.describe(frame)
         t = time.perf_counter()
         result = matcher.match_description(described)
         wall = time.perf_counter() - t
@@ -270,20 +285,9 @@ def run_size(n: int, real: np.ndarray, steps: int, queries: int, threads: int, r
     }
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--sizes", type=int, nargs="+", default=[1000, 10000, 100000, 1000000])
-    parser.add_argument("--steps", type=int, default=200, help="localizer steps timed per map size")
-    parser.add_argument("--queries", type=int, default=200, help="searches timed per map size")
-    parser.add_argument("--real", type=Path, default=DEFAULT_REAL, help="a LoST map to sample descriptors around")
-    parser.add_argument("--build-threads", type=int, default=os.cpu_count() or 1,
-                        help="threads building each index (a benchmark's graph need not be reproducible)")
-    parser.add_argument("--repeat-places", action="store_true",
-                        help="stretches that repeat the real route's places (a worst case) rather than places of their own")
-    parser.add_argument("--out", type=Path, default=RESULTS / "localizer.json")
-    args = parser.parse_args()
-    real = real_map(args.real)
-    fixed = network_free_stages(real, 50)
+def report(args: argparse.Namespace, real: ReferenceMap) -> None:
+    """Measures every stage at each map size around ``real``, prints the table and writes the JSON."""
+    fixed = network_free_stages(real, 10 if args.quick else FIXED_QUERIES)
     per_frame_evidence = sum(int(e["bytes"]) for name, e in real.manifest["arrays"].items()
                              if name not in ("descriptors", "appearance")) / real.n_frames
     vectors = np.asarray(real.descriptors, dtype=np.float32)
@@ -311,10 +315,30 @@ def main() -> None:
                  "after network (index)", "after network (index, one direction)", "after network (exact)",
                  "kB per map frame"], rows)
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6
-    write_json(args.out, {"benchmark": "localizer", "real_map": str(args.real), "noise": NOISE,
+    write_json(args.out, {"benchmark": "localizer", "real_map": str(real.path), "noise": NOISE,
                           "stretch": STRETCH, "repeat_places": args.repeat_places,
                           "fixed_stages": fixed, "evidence_bytes_per_frame": per_frame_evidence,
                           "peak_rss_gb": peak, "sizes": results})
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--sizes", type=int, nargs="+", default=[1000, 10000, 100000, 1000000])
+    parser.add_argument("--steps", type=int, default=200, help="localizer steps timed per map size")
+    parser.add_argument("--queries", type=int, default=200, help="searches timed per map size")
+    parser.add_argument("--real", type=Path, help="a LoST map to sample descriptors around (default: the Nordland "
+                        f"summer frames', built once in {DEFAULT_REAL}; with --quick, their first {QUICK_REAL_FRAMES}'s, "
+                        "in a temporary folder)")
+    parser.add_argument("--build-threads", type=int, default=os.cpu_count() or 1,
+                        help="threads building each index (a benchmark's graph need not be reproducible)")
+    parser.add_argument("--repeat-places", action="store_true",
+                        help="stretches that repeat the real route's places (a worst case) rather than places of their own")
+    args = parse(parser, "localizer", quick=f"a 1,000-frame map around {QUICK_REAL_FRAMES} real frames, 20 steps "
+                                            f"and searches, 10 real queries")
+    if args.quick:
+        args.sizes, args.steps, args.queries = [1000], 20, 20
+    with tempfile.TemporaryDirectory() as scratch:
+        report(args, chosen_real(args.real, args.quick, Path(scratch)))
 
 
 if __name__ == "__main__":

@@ -10,7 +10,7 @@ the median length of the steps both runs measured) moves when the camera's heigh
 by +-1 degree, and (with ``--masks``) the same figures with the default backbone's road and mover masks instead of
 the geometric road.
 
-    python benchmarks/bench_odometry.py [--width 800] [--masks] [--out benchmarks/results/odometry.json]
+    python benchmarks/bench_odometry.py [--width 800] [--masks] [--quick] [--out benchmarks/results/odometry.json]
 """
 
 from __future__ import annotations
@@ -23,12 +23,11 @@ import json
 import math
 import time
 from dataclasses import replace
-from pathlib import Path
 
 import cv2
 import numpy as np
 
-from common import RESULTS, print_table, write_json
+from common import parse, print_table, write_json
 from lostx.core.geometry import CameraGeometry, quaternion_matrix
 from lostx.core.motion.pose import camera_ground_pose, compose, relative, wrap
 from lostx.core.motion.visual import VisualOdometry
@@ -141,12 +140,12 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--width", type=int, default=800, help="working width of the odometry (pixels)")
     parser.add_argument("--masks", action="store_true", help="also run with the default backbone's masks")
-    parser.add_argument("--out", type=Path, default=RESULTS / "odometry.json")
-    args = parser.parse_args()
+    args = parse(parser, "odometry", quick="the front camera only")
+    cameras = ("front",) if args.quick else ("front", "rear")
 
     results: dict = {"scene": SCENE.name, "width": args.width, "opencv_threads": cv2.getNumThreads(), "cameras": {}}
     rows, sensitivity_rows = [], []
-    for camera in ("front", "rear"):
+    for camera in cameras:
         frames, vehicle = load(camera)
         nominal = geometry(camera)
         truth = camera_ground_pose(vehicle, nominal)

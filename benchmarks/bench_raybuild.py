@@ -7,7 +7,7 @@ Ray's start-up of the workers included), and of the whole build (the commit, the
 calibration after it run in the driver, the same in every build).
 Every map is checked to hold the single-process build's descriptors, byte for byte.
 
-    python benchmarks/bench_raybuild.py [--frames 400] [--workers 1 2]
+    python benchmarks/bench_raybuild.py [--frames 400] [--workers 1 2] [--quick] [--out benchmarks/results/raybuild.json]
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from common import RESULTS, print_table, write_json
+from common import parse, print_table, write_json
 from lostx.core.build import build_map
 from lostx.core.config import BackboneConfig, Config
 from lostx.core.paths import data_dir
@@ -50,8 +50,9 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=400)
     parser.add_argument("--workers", type=int, nargs="+", default=[1, 2])
     parser.add_argument("--source", type=Path, default=data_dir() / "nordland-64x32" / "summer")
-    parser.add_argument("--out", type=Path, default=RESULTS / "raybuild.json")
-    args = parser.parse_args()
+    args = parse(parser, "raybuild", quick="40 frames, one worker")
+    if args.quick:
+        args.frames, args.workers = 40, [1]
 
     import ray
 

@@ -6,7 +6,7 @@ and an MPEG-4 video; each is opened with ``open_traverse`` and read forwards and
 backwards (``Traverse.reversed``: bags then find each message through their index,
 videos seek). Times are per frame, with the ratio to the folder's, measured in one run.
 
-    python benchmarks/bench_readers.py [--frames 50] [--out benchmarks/results/readers.json]
+    python benchmarks/bench_readers.py [--frames 50] [--quick] [--out benchmarks/results/readers.json]
 """
 
 from __future__ import annotations
@@ -21,13 +21,13 @@ from pathlib import Path
 
 import cv2
 
-from common import RESULTS, print_table, write_json
+from common import parse, print_table, write_json
 from lostx.core.images import list_images, read_image
 from lostx.core.paths import data_dir
 from lostx.replay.dataset import SourceOptions, open_traverse
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
-from rosbags import compressed_image, raw_image, write_bag  # noqa: E402  (the tests' bag writer)
+from bagtools import compressed_image, raw_image, write_bag  # noqa: E402  (the tests' bag writer)
 
 T0 = 1_700_000_000_000_000_000
 
@@ -74,8 +74,9 @@ def per_frame_ms(frames) -> float:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=50)
-    parser.add_argument("--out", type=Path, default=RESULTS / "readers.json")
-    args = parser.parse_args()
+    args = parse(parser, "readers", quick="5 frames")
+    if args.quick:
+        args.frames = 5
     rows, results = [], {}
     with tempfile.TemporaryDirectory() as tmp:
         sources = make_sources(Path(tmp), args.frames)

@@ -13,7 +13,7 @@ and to unpack and restore it (once per stream, at its first frame after a
 restart). The journal itself does not grow with it: its records are the answers
 as before.
 
-    python benchmarks/bench_restore.py [--frames 60] [--repeat 20] [--out benchmarks/results/restore.json]
+    python benchmarks/bench_restore.py [--frames 60] [--repeat 20] [--quick] [--out benchmarks/results/restore.json]
 """
 
 from __future__ import annotations
@@ -72,8 +72,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--frames", type=int, default=60)
     parser.add_argument("--repeat", type=int, default=20)
-    parser.add_argument("--out", type=Path, default=common.RESULTS / "restore.json")
-    args = parser.parse_args()
+    args = common.parse(parser, "restore", quick="10 frames stepped, 3 timed calls")
+    if args.quick:
+        args.frames, args.repeat = 10, 3
     nordland = data_dir() / "nordland-64x32"
     winter = list(folder_traverse(nordland / "winter"))[: args.frames]
     rows, runs = [], []
@@ -89,10 +90,10 @@ def main() -> None:
             run = measure(ReferenceMap.open(out), winter, args.repeat, states)
             runs.append(run)
             rows.append([run["map_frames"], run["state_bytes"] / 1e3, run["state_bound_bytes"] / 1e3,
-                         run["part_bytes"]["sequence"] / 1e3, run["pack"]["median_ms"], run["batch_1"]["median_ms"],
+                         run["part_bytes"]["filters"] / 1e3, run["pack"]["median_ms"], run["batch_1"]["median_ms"],
                          run["batch_8"]["median_ms"], run["files_8"]["median_ms"], run["restore"]["median_ms"]])
     common.print_table(f"A stream's saved state after {args.frames} Nordland winter frames (medians of {args.repeat})",
-                       ["map frames", "state kB", "bound kB", "of it sequence kB", "pack ms", "batch of 1 ms",
+                       ["map frames", "state kB", "bound kB", "of it sequence filters kB", "pack ms", "batch of 1 ms",
                         "batch of 8 ms", "8 files ms", "restore ms"], rows)
     common.write_json(args.out, {"frames": args.frames, "repeat": args.repeat, "runs": runs})
 

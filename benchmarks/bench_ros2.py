@@ -39,7 +39,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from common import RESULTS, print_table, write_json
+from common import parse, print_table, write_json
 from lostx.core import Config, Localizer, LostDescriber, ReferenceMap, load_backbone
 from lostx.core.build import build_map
 from lostx.core.config import Ros2Config, SequenceConfig
@@ -197,12 +197,10 @@ def added_latency(camera: Camera, arrivals: Arrivals, pings: int) -> tuple[list[
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--quick", action="store_true", help="one round of 10 frames and 5 pings")
     parser.add_argument("--frames", type=int, default=20, help="frames per batch (default 20)")
     parser.add_argument("--rounds", type=int, default=3, help="interleaved rounds of batches (default 3)")
     parser.add_argument("--pings", type=int, default=20, help="frames sent one at a time for latency (default 20)")
-    parser.add_argument("--out", type=Path, default=RESULTS / "ros2.json")
-    args = parser.parse_args()
+    args = parse(parser, "ros2", quick="one round of 10 frames and 5 pings")
     if args.quick:
         args.frames, args.rounds, args.pings = 10, 1, 5
     load_start = os.getloadavg()[0]

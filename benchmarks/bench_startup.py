@@ -1,13 +1,13 @@
 """Start-up time of the ``lostx`` command and the size of the installed environment.
 
-    python benchmarks/bench_startup.py [--repeat 15]
+    python benchmarks/bench_startup.py [--repeat 15] [--quick] [--out benchmarks/results/startup.json]
 
 Times whole processes (interpreter start included) of ``lostx --help``,
 ``lostx --version`` and a sub-command's ``--help`` against a bare
 ``python -c pass`` and against importing what a real run needs (the localizer,
 and torch for the PyTorch backbone), so the figures read as ratios taken in one
 run. Then sums the installed packages of the running environment, largest
-first. Prints tables; writes ``benchmarks/results/startup.json``.
+first. Prints tables; writes ``benchmarks/results/startup.json`` (or ``--out``).
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ import time
 from importlib import metadata
 from pathlib import Path
 
-from common import RESULTS, print_table, summary, write_json
+from common import parse, print_table, summary, write_json
 
 COMMANDS = {
     "python -c pass (the interpreter alone)": [sys.executable, "-c", "pass"],
@@ -59,7 +59,9 @@ def package_sizes() -> list[tuple[str, int]]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=15)
-    args = parser.parse_args()
+    args = parse(parser, "startup", quick="2 runs of each command")
+    if args.quick:
+        args.repeat = 2
 
     measured = {name: time_process(argv, args.repeat) for name, argv in COMMANDS.items()}
     timings = {name: summary(samples) for name, samples in measured.items() if samples is not None}
@@ -71,7 +73,7 @@ def main() -> None:
     total = sum(size for _, size in sizes)
     print_table(f"installed packages: {total / 1e6:.0f} MB in all", ["package", "MB", "share %"],
                 [[name, size / 1e6, 100 * size / total] for name, size in sizes[:10]])
-    write_json(RESULTS / "startup.json", {
+    write_json(args.out, {
         "repeat": args.repeat,
         "startup_ms": timings,
         "installed_bytes": total,

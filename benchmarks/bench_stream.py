@@ -19,7 +19,7 @@ Per encoding:
   encoding, both sockets, decoding the image, the hand-offs, decoding the result.
 
     python benchmarks/bench_stream.py [--frames 10] [--rounds 3] [--pings 20] [--encodings raw,jpeg]
-                                      [--transport tcp|ipc] [--out benchmarks/results/stream.json]
+                                      [--transport tcp|ipc] [--quick] [--out benchmarks/results/stream.json]
 """
 
 from __future__ import annotations
@@ -39,7 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
-from common import RESULTS, cpu_seconds, print_table, write_json
+from common import cpu_seconds, parse, print_table, write_json
 from lostx.core import Config, Frame, Localizer, LostDescriber, ReferenceMap, load_backbone
 from lostx.core.build import build_map
 from lostx.core.paths import data_dir
@@ -178,8 +178,9 @@ def main() -> int:
     parser.add_argument("--pings", type=int, default=20, help="frames sent one at a time for latency (default 20)")
     parser.add_argument("--encodings", default="raw,jpeg", help="comma-separated: raw, png, jpeg (default raw,jpeg)")
     parser.add_argument("--transport", choices=["tcp", "ipc"], default="tcp", help="loopback TCP (default) or IPC")
-    parser.add_argument("--out", type=Path, default=RESULTS / "stream.json")
-    args = parser.parse_args()
+    args = parse(parser, "stream", quick="3 frames a batch, one round, 3 pings")
+    if args.quick:
+        args.frames, args.rounds, args.pings = 3, 1, 3
     encodings = [e.strip() for e in args.encodings.split(",")]
     load_start = os.getloadavg()[0]
     frames = night_frames(args.frames)

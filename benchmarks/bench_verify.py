@@ -14,7 +14,7 @@ worst case for verification). Each kind is measured with the keypoint descriptor
 where the defaults reduce them (more than 512 channels), reduced to 64 dimensions by the map's own
 projection.
 
-    python benchmarks/bench_verify.py [--repeat 30] [--out benchmarks/results/verify.json]
+    python benchmarks/bench_verify.py [--repeat 30] [--quick] [--out benchmarks/results/verify.json]
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ from pathlib import Path
 
 import common  # noqa: F401  (first: it limits numpy's BLAS threads before numpy loads)
 import numpy as np
-from common import RESULTS, print_table, summary, time_call, write_json
+from common import parse, print_table, summary, time_call, write_json
 
 from lostx.core.backbones import BackboneInfo
 from lostx.core.config import VerifyConfig
@@ -123,11 +123,13 @@ def measure(d: int, dense: bool, reduced: bool, repeat: int, tmp: Path) -> dict:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=30, help="timed calls per stage")
-    parser.add_argument("--out", type=Path, default=RESULTS / "verify.json")
-    args = parser.parse_args()
+    args = parse(parser, "verify", quick="960 channels only (whole and reduced), 3 timed calls per stage")
+    channels = (320, 960, 2048)
+    if args.quick:
+        channels, args.repeat = (960,), 3
     results = []
     with tempfile.TemporaryDirectory() as tmp:
-        for d in (320, 960, 2048):
+        for d in channels:
             for dense in (True, False):
                 for reduced in (False, True) if reduced_dims(VerifyConfig(), d) else (False,):
                     results.append(measure(d, dense, reduced, args.repeat, Path(tmp)))

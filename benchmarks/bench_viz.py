@@ -1,6 +1,6 @@
 """What the live Rerun view costs the localizer: frames per second with the sink off and with ``--rrd``.
 
-    python benchmarks/bench_viz.py [--map MAP] [--queries DIR] [--frames 10] [--rounds 30]
+    python benchmarks/bench_viz.py [--map MAP] [--queries DIR] [--frames 10] [--rounds 30] [--quick]
                                    [--out benchmarks/results/viz.json]
 
 The RobotCar night frames (decoded once) are localized against the day map.
@@ -52,6 +52,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from common import parse
 from lostx.core.backbones import load_backbone
 from lostx.core.build import build_map
 from lostx.core.config import Config
@@ -114,8 +115,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--queries", type=Path, help="query images (default: the RobotCar night frames)")
     parser.add_argument("--frames", type=int, default=10, help="frames per pass (the queries cycled)")
     parser.add_argument("--rounds", type=int, default=30)
-    parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "viz.json")
-    args = parser.parse_args(argv)
+    args = parse(parser, "viz", quick="3 frames a pass, 2 rounds", argv=argv)
+    if args.quick:
+        args.frames, args.rounds = 3, 2
 
     robotcar = data_dir() / "robotcar-daynight"
     config = Config()

@@ -1,4 +1,4 @@
-"""Helpers shared by the benchmarks: timing, tables, JSON output."""
+"""Helpers shared by the benchmarks: options, timing, tables, JSON output."""
 
 from __future__ import annotations
 
@@ -6,6 +6,7 @@ import os
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # as the lostx command does (lostx/cli.py)
 
+import argparse  # noqa: E402
 import json  # noqa: E402
 import platform  # noqa: E402
 import statistics  # noqa: E402
@@ -14,6 +15,19 @@ from pathlib import Path  # noqa: E402
 from typing import Any, Callable  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
+
+
+def parse(parser: argparse.ArgumentParser, name: str, quick: str, argv: list[str] | None = None) -> argparse.Namespace:
+    """The options every benchmark takes, then its arguments: ``--quick`` (``quick`` says what it then runs) and
+    ``--out``. A quick run's JSON goes to ``NAME-quick.json`` unless told, so that a check that the benchmark
+    runs never replaces its measured figures in ``NAME.json``."""
+    parser.add_argument("--quick", action="store_true", help=f"{quick}: a check that it runs, in seconds")
+    parser.add_argument("--out", type=Path, help=f"where the JSON goes (default: benchmarks/results/{name}.json; "
+                                                 f"{name}-quick.json with --quick)")
+    args = parser.parse_args(argv)
+    if args.out is None:
+        args.out = RESULTS / (f"{name}-quick.json" if args.quick else f"{name}.json")
+    return args
 
 
 def time_call(fn: Callable[[], Any], repeat: int, warmup: int = 2) -> list[float]:
