@@ -217,9 +217,10 @@ def figure(results: dict, scene: str, rate: str = "2 Hz") -> int:
 
 
 def chosen_on(results: dict[str, dict], scene: str) -> str:
-    """The setting with the best figure on ``scene`` (ties: the order listed)."""
+    """The setting with the best figure on ``scene``; a tie keeps the default (nothing shows a change is better),
+    else the first listed."""
     names = list(results)
-    return max(names, key=lambda name: (figure(results[name], scene), -names.index(name)))
+    return max(names, key=lambda name: (figure(results[name], scene), "(default" in name, -names.index(name)))
 
 
 NOISE = 2

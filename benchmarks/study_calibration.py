@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from common import RESULTS, print_table, write_json
+from common import parse, print_table, write_json
 from lostx.core import Config, Localizer, ReferenceMap, build_map
 from lostx.core.config import SequenceConfig
 from lostx.core.describe.thumbnail import ThumbnailDescriber
@@ -68,8 +68,9 @@ def main() -> None:
     parser.add_argument("--lengths", type=int, nargs="*", default=[100, 200])
     parser.add_argument("--stretches", type=int, default=8, help="stretches of each length, spread over the route")
     parser.add_argument("--full", action="store_true", help="also the whole route (3576 frames)")
-    parser.add_argument("--out", type=Path, default=RESULTS / "study_calibration.json")
-    args = parser.parse_args()
+    args = parse(parser, "study_calibration", "one map of 100 frames")
+    if args.quick:
+        args.lengths, args.stretches, args.full = [100], 1, False
     total = len(folder_traverse(NORDLAND / "summer"))
     spans = [range(int(s), int(s) + n) for n in args.lengths
              for s in np.linspace(0, total - n, args.stretches).astype(int)]

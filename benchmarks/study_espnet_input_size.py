@@ -16,13 +16,12 @@ from __future__ import annotations
 import common  # noqa: F401  (first: it limits numpy's BLAS threads before numpy loads)
 
 import argparse
-from pathlib import Path
 
 import numpy as np
 
 import lostx.core.backbones.espnet as espnet
 from bench_backbones import SCORINGS, cell, day_night, network_time
-from common import RESULTS, print_table, write_json
+from common import parse, print_table, write_json
 from lostx.core import Config, load_backbone
 from lostx.core.config import BackboneConfig
 from lostx.core.paths import data_dir
@@ -48,8 +47,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sizes", nargs="+", default=["1024x640", "1024x512", "768x384", "512x256"])
     parser.add_argument("--repeat", type=int, default=20, help="timed frames per size")
-    parser.add_argument("--out", type=Path, default=RESULTS / "espnet_input_size.json")
-    args = parser.parse_args()
+    args = parse(parser, "espnet_input_size", "the smallest size, two timed frames")
+    if args.quick:
+        args.sizes, args.repeat = ["512x256"], 2
 
     root = data_dir() / "robotcar-daynight"
     frames = {folder: [f.image for f in folder_traverse(root / folder)] for folder in ("day", "night")}

@@ -1,13 +1,12 @@
 """How sure the heading is, against how often it is right: the reliability table on both nuScenes scenes.
 
 Every pairing of the front and rear cameras (S1 to S4, the heading opposite; S0, the front camera's even frames
-against its odd ones, the heading the same) on ``scene-0523`` and ``scene-0916``, at 2 Hz and 1 Hz, heading not
-declared (:mod:`scenes`). For each setting of ``[heading] misled`` and each voter left out: the frames whose heading is
-right, and every frame's heading confidence binned against the share of its bin that is right. The setting is chosen
-by the log-likelihood of the frames' headings under their confidences (how well calibrated they are), its worse scene
-best.
+against its odd ones, the heading the same) on ``scene-0523`` and ``scene-0916``, at 2 Hz (``--rates`` adds 1 Hz),
+heading not declared (:mod:`scenes`). For each setting of ``[heading] misled``: the frames whose heading is right,
+and every frame's heading confidence binned against the share of its bin that is right. The setting is chosen by the
+log-likelihood of the frames' headings under their confidences (how well calibrated they are), its worse scene best.
 
-    python benchmarks/study_heading.py [--quick] [--out benchmarks/results/study_heading.json]
+    python benchmarks/study_heading.py [--quick] [--rates "2 Hz,1 Hz"] [--out benchmarks/results/study_heading.json]
 """
 
 from __future__ import annotations
@@ -24,14 +23,11 @@ import numpy as np
 from common import RESULTS, markdown_table, print_table, write_json
 from lostx.core import Config
 from scenes import PAIRINGS, RATES, SAME, SCENES, Counts, Study, variant
-from study_layout import _voters
 
 BINS = (0.5, 0.6, 0.7, 0.8, 0.9, 0.95, 0.99, 1.0001)
 VARIANTS = {
     **{f"misled {e:g}{' (default)' if e == Config().heading.misled else ''}": (variant(heading=dict(misled=e)), None)
-       for e in (0.05, 0.1, 0.2, 0.3)},
-    "mirror alone": (Config(), _voters("mirror")),
-    "motion alone": (Config(), _voters("motion")),
+       for e in (0.02, 0.05, 0.1, 0.2)},
 }
 
 
@@ -52,9 +48,10 @@ def log_likelihood(counts: Counts) -> float:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="the default only, S1 at 2 Hz: a check that it runs")
+    parser.add_argument("--rates", default="2 Hz", help="comma-separated: " + ", ".join(RATES))
     parser.add_argument("--out", type=Path, default=RESULTS / "study_heading.json")
     args = parser.parse_args()
-    variants, pairings, rates = VARIANTS, (*PAIRINGS, *SAME), tuple(RATES)
+    variants, pairings, rates = VARIANTS, (*PAIRINGS, *SAME), tuple(r.strip() for r in args.rates.split(","))
     if args.quick:
         default = next(n for n in VARIANTS if "(default)" in n)
         variants, pairings, rates = {default: VARIANTS[default]}, ("S1",), ("2 Hz",)

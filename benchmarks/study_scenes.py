@@ -1,8 +1,8 @@
 """The headline figures: each nuScenes scene with the settings chosen on the other one, beside LoST-X without the
 layout and appearance (GeM) on the same frames.
 
-Every family of ``study_layout.py`` (its JSON, ``benchmarks/results/study_layout.json``) names the variant chosen on
-each scene. The settings chosen on one scene are those variants together; they run on the other scene, both ways,
+Every family of ``study_layout.py`` (its JSON, ``benchmarks/results/study_layout.json``) has a variant chosen on
+each scene (:func:`scenes.chosen_on`). The settings chosen on one scene are those variants together; they run on the other scene, both ways,
 all four pairings, at 2 Hz and 1 Hz, heading not declared (:mod:`scenes`). The defaults run beside them (chosen on
 both scenes by the rule: in-sample, secondary).
 
@@ -23,8 +23,8 @@ from pathlib import Path
 
 from common import RESULTS, markdown_table, print_table, write_json
 from lostx.core import Config
-from scenes import MODES, PAIRINGS, RATES, SCENES, Study, variant
-from study_layout import FAMILIES
+from scenes import MODES, PAIRINGS, RATES, SCENES, Counts, Study, chosen_on, variant
+from study_layout import FAMILIES, MEASURED
 
 BASELINES = {
     "LoST-X without the layout": variant(layout=dict(enabled="off"), cues=dict(appearance=False)),
@@ -50,9 +50,10 @@ def chosen_settings(families: dict, scene: str) -> tuple[Config, list, list[str]
     sections: dict[str, dict] = {}
     patches, names = [], []
     for family, report in families.items():
-        name = (report.get("chosen") or {}).get(scene)
-        if name is None or family not in FAMILIES or name not in FAMILIES[family]:
+        if family in MEASURED or family not in FAMILIES:
             continue
+        results = {name: counted(r) for name, r in report["results"].items() if name in FAMILIES[family]}
+        name = chosen_on(results, scene)
         config, patch = FAMILIES[family][name]
         if "(default" not in name:
             names.append(f"{family}: {name}")
@@ -61,6 +62,12 @@ def chosen_settings(families: dict, scene: str) -> tuple[Config, list, list[str]
         if patch is not None and not isinstance(patch, tuple):
             patches.append(patch)
     return variant(**sections), patches, names
+
+
+def counted(figures: dict) -> dict:
+    """A variant's figures as study_layout.py wrote them (scene -> rate -> pairing -> mode -> fields), as Counts."""
+    return {s: {r: {p: {m: Counts(**c) for m, c in by_p.items()} for p, by_p in by_r.items()}
+                for r, by_r in by_s.items()} for s, by_s in figures.items()}
 
 
 def together(patches: list):
@@ -98,8 +105,8 @@ def main() -> None:
         for label, config in BASELINES.items():
             runs[label] = (config, [], [])
     report: dict[str, dict] = {}
-    markdown = [f"# {__doc__.splitlines()[0]}\n", "Written by `python benchmarks/study_scenes.py`. Recall@1 at 7.5 m "
-                "of the look-at points (single, sequence) and frames whose heading is right, heading not declared.\n"]
+    markdown = ["# Each nuScenes scene with the settings chosen on the other one\n",
+                "Written by `python benchmarks/study_scenes.py`. Recall@1 at 7.5 m of the look-at points (single, sequence) and frames whose heading is right, heading not declared.\n"]
     with tempfile.TemporaryDirectory() as tmp:
         study = Study(Path(tmp))
         results = {}

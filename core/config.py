@@ -258,7 +258,7 @@ class LayoutConfig:
     """At most this many frames are gathered into one grid (the most recent ones, or those nearest a map frame)."""
     across_shift: float = 4.0
     """The grids are compared shifted sideways up to this many metres: a car driving the road the other way drives
-    another lane, 3 to 3.7 m over (benchmarks/study_lane.py)."""
+    another lane, 3 to 3.7 m over (benchmarks/study_layout.py judges it over the lane and one to either side)."""
     turns: tuple[float, ...] = (-5.0, 0.0, 5.0)
     """The most similar map grids are compared again with the query's turned by these angles (degrees) about its
     centre: views of a curve from its two ends are not exactly 180 degrees apart, and the gathered frames' motion
@@ -317,7 +317,7 @@ class HeadingConfig:
     driving the map's direction (a front camera on a front-camera map: ``same``). 0.5 assumes nothing
     about the direction of travel (the declared camera then only ties that direction to the heading
     found); 0.9 for a vehicle known to drive the mapped direction; 1.0 trusts the declaration outright."""
-    misled: float = 0.1
+    misled: float = 0.05
     """How likely any one voter is to be misled by a road, pointing the wrong way however consistently (a street that
     looks alike both ways, a turn where neither heading holds): a sure voter moves the heading's odds by at most
     (1 - misled) / misled, and voters that disagree leave it uncertain (see lostx.core.route.heading). Chosen across

@@ -22,13 +22,6 @@ SCRIPTS = sorted([*BENCHMARKS.glob("bench_*.py"), *BENCHMARKS.glob("study_*.py")
 TIMEOUT_S = 180
 NEEDS = {"bench_raybuild.py": "ray", "bench_ros2.py": "cyclonedds"}
 """Scripts that need an optional package of the test extra: skipped, saying which, where it is not installed."""
-KNOWN_BROKEN = {
-    "study_calibration.py": "takes no --quick",
-    "study_espnet_input_size.py": "takes no --quick",
-    "study_opposite.py": "takes no --quick (nor --out: it always writes benchmarks/results/study_opposite.json)",
-    "study_layout.py": "--quick runs S1 only, scenes.figure sums S1 and S2: KeyError 'S2'",
-}
-"""Studies whose fix is their owners' to make. Strict: the day one runs, its entry must go."""
 NOT_MEASURED = {"machine", "load_average"}
 """What describes the machine the run was on rather than what it measured."""
 
@@ -63,12 +56,10 @@ def run_quick(script: Path, out: Path) -> subprocess.CompletedProcess:
 def test_scripts_are_found() -> None:
     names = {script.name for script in SCRIPTS}
     assert {"bench_localizer.py", "study_heading.py"} <= names and not names & {"common.py", "scenes.py"}
-    assert set(NEEDS) | set(KNOWN_BROKEN) <= names
+    assert set(NEEDS) <= names
 
 
-@pytest.mark.parametrize("script", [
-    pytest.param(script, marks=pytest.mark.xfail(reason=f"{script.name} {KNOWN_BROKEN[script.name]}", strict=True))
-    if script.name in KNOWN_BROKEN else script for script in SCRIPTS], ids=lambda script: script.stem)
+@pytest.mark.parametrize("script", SCRIPTS, ids=lambda script: script.stem)
 def test_quick_run(script: Path, tmp_path: Path) -> None:
     if script.name in NEEDS:
         pytest.importorskip(NEEDS[script.name], reason=f"{script.name} needs {NEEDS[script.name]} (the test extra)")

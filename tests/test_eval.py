@@ -48,9 +48,11 @@ def test_figures_match_the_single_frame_and_sequence_runs(report):
     assert find(rows, "lostx", "single", 1.0)["recall_at_1"] == pytest.approx(1.0)
     assert find(rows, "lostx", "sequence", 0.0)["recall_at_1"] == pytest.approx(0.7)
     assert find(rows, "lostx", "single", 1.0)["recall_at_100p"] == pytest.approx(1.0)
-    # The verification earns its keep over the descriptor alone (measured: 20 % vs 60 % exact).
+    # The verification earns its keep over the descriptor alone (measured: 20 % vs 60 % exact), and over SeqSLAM's
+    # thumbnails (none exact: a night thumbnail's mirrored match is as good as its own, so its heading is found the
+    # wrong way in 3 of 10 frames).
     assert find(rows, "lost", "single", 0.0)["recall_at_1"] == pytest.approx(0.2)
-    assert find(rows, "thumbnail", "single", 0.0)["recall_at_1"] == pytest.approx(0.2)
+    assert find(rows, "thumbnail", "single", 0.0)["recall_at_1"] == pytest.approx(0.0)
 
 
 def test_recall_comes_with_its_interval_and_the_methods_are_compared_query_by_query(report):

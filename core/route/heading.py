@@ -157,6 +157,7 @@ class HeadingFilter:
         for tally in self.tallies.values():
             tally.reset()
         self._declared: Heading | None = None
+        self._lean = 0.0
         self.belief = np.full(2, 0.5)
 
     def update(self, votes: dict[str, float], declared: Heading | None = None) -> tuple[Heading, float]:
@@ -174,20 +175,26 @@ class HeadingFilter:
         prior = 0.5 if declared is None else float(_prior(declared, cfg.declared_prior)[1])
         opposite = pooled(effects, cfg.misled, prior)
         self.belief = np.array([1.0 - opposite, opposite])
+        # Even odds (no voter has voted long enough to count): the frame's own votes say which heading to answer
+        # under, without making it any surer.
+        self._lean = float(sum(v for v in votes.values() if v is not None))
         return self.answer()
 
     def answer(self) -> tuple[Heading, float]:
         best = int(np.argmax(self.belief))
+        if self.belief[0] == self.belief[1] and self._lean != 0.0:
+            best = HEADINGS.index("opposite" if self._lean > 0 else "same")
         return HEADINGS[best], float(self.belief[best])  # type: ignore[return-value]
 
     def state(self) -> dict:
-        return {"belief": self.belief, "declared": self._declared,
+        return {"belief": self.belief, "declared": self._declared, "lean": self._lean,
                 "tallies": {name: t.state() for name, t in self.tallies.items()}}
 
     def restore(self, state: dict) -> None:
         self.reset()
         self.belief = np.asarray(state["belief"], dtype=np.float64)
         self._declared = state["declared"]
+        self._lean = float(state.get("lean", 0.0))
         for name, saved in state.get("tallies", {}).items():
             if name in self.tallies:
                 self.tallies[name].restore(saved)
