@@ -4,7 +4,8 @@ Every pairing of the front and rear cameras (S1 to S4, the heading opposite; S0,
 against its odd ones, the heading the same) on ``scene-0523`` and ``scene-0916``, at 2 Hz (``--rates`` adds 1 Hz),
 heading not declared (:mod:`scenes`). For each setting of ``[heading] misled``: the frames whose heading is right,
 and every frame's heading confidence binned against the share of its bin that is right. The setting is chosen by the
-log-likelihood of the frames' headings under their confidences (how well calibrated they are), its worse scene best.
+log-likelihood of the frames' headings under their confidences (how well calibrated they are), its worse scene best,
+the default kept unless that gains more than :data:`NATS`.
 
     python benchmarks/study_heading.py [--quick] [--rates "2 Hz,1 Hz"] [--out benchmarks/results/study_heading.json]
 """
@@ -24,6 +25,9 @@ from common import RESULTS, markdown_table, print_table, write_json
 from lostx.core import Config
 from scenes import PAIRINGS, RATES, SAME, SCENES, Counts, Study, variant
 
+NATS = 2.0
+"""The default's calibration is kept unless another setting's is better by more than this (a likelihood ratio of
+e^2, about 7: the frames' headings are strongly correlated, so a nat or two is noise)."""
 BINS = (0.5, 0.6, 0.7, 0.8, 0.9, 0.95, 0.99, 1.0001)
 VARIANTS = {
     **{f"misled {e:g}{' (default)' if e == Config().heading.misled else ''}": (variant(heading=dict(misled=e)), None)
@@ -91,9 +95,14 @@ def main() -> None:
         markdown.append(markdown_table(*table))
     misled = {n: r for n, r in report.items() if n.startswith("misled")}
     if len(misled) > 1:
-        best = max(misled, key=lambda n: min(misled[n]["log_likelihood"].values()))
-        print(f"the rule's choice (its worse scene's log-likelihood best): {best}")
-        markdown.append(f"- the rule's choice (its worse scene's log-likelihood best): {best}\n")
+        worse = {n: min(r["log_likelihood"].values()) for n, r in misled.items()}
+        best = max(worse, key=worse.__getitem__)
+        default = next((n for n in worse if "(default)" in n), best)
+        chosen = best if worse[best] - worse[default] > NATS else default
+        note = (f"the rule's choice (its worse scene's log-likelihood best, the default kept within {NATS:g} nats): "
+                f"{chosen} (best: {best}, {worse[best]:.1f} against {worse[default]:.1f})")
+        print(note)
+        markdown.append(f"- {note}\n")
     if not args.quick:
         args.out.with_suffix(".md").write_text("\n".join(markdown))
     write_json(args.out, {"benchmark": "study_heading", "bins": BINS, "variants": report})
