@@ -7,8 +7,8 @@ placing the frame and choosing the frames its layout grid gathers, gathering the
 map frame under both headings, the sequence filter following the distance travelled, the tracker); and, beside the
 network, visual odometry on the same frames (what a source without odometry pays). The gathering and the comparison
 run in a process of its own (on a map of this size) from the moment the frame is placed, beside its descriptor,
-search and verification: "layout compare" is their own time there, "layout" choosing the frames, "combine" what the
-comparison added to the frame's (waiting for it, then ranking by both cues); "after the network" is the frame's
+search and verification: "layout compare" is their own time there, "layout" choosing the frames, "cues" each cue's
+own sequence filter and agreement under each heading and the combined ranking; "after the network" is the frame's
 wall-clock time less the network's.
 
     python benchmarks/bench_layout.py [--frames 1000] [--repeat 80] [--quick] [--out benchmarks/results/layout.json]
@@ -35,7 +35,7 @@ from lostx.core.paths import data_dir
 from lostx.replay.dataset import open_traverse
 
 SCENE = data_dir() / "nuscenes-frontrear" / "scene-0523"
-STAGES = ("descriptor", "search", "verify", "layout compare", "combine", "motion", "layout", "costs", "sequence",
+STAGES = ("descriptor", "search", "verify", "layout compare", "cues", "motion", "layout", "costs", "sequence",
           "tracker", "other heading")
 
 

@@ -299,8 +299,14 @@ class SequenceFilter:
     def _entered(self, counted: np.ndarray | slice) -> np.ndarray:
         """(trajectories,) the first of the ``counted`` frames at which each trajectory lies on the map (their number
         where it never does)."""
-        where = np.rint(self._lines(slice(None)))
-        on_map = ((where >= 0) & (where < self.costs.n_refs))[:, counted]
+        if self.route is None:
+            where = np.rint(self._lines(slice(None)))
+            on_map = ((where >= 0) & (where < self.costs.n_refs))[:, counted]
+        else:
+            # On the route is on the map (:meth:`_at_route`): a bounds check, without placing every line on it.
+            progress = np.asarray(self._progress)[counted]
+            along = self._anchor_p[:, None] + self._speed[:, None] * (progress - self._anchor_q[:, None])
+            on_map = (along >= self.route[0] - 1e-9) & (along <= self.route[-1] + 1e-9)
         return np.where(on_map.any(axis=1), on_map.argmax(axis=1), on_map.shape[1])
 
     def _evaluate(self) -> None:
