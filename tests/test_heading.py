@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from lostx.core.config import HeadingConfig
-from lostx.core.route.heading import HeadingFilter, TwoStateFilter, VoteTally
+from lostx.core.route.direction import TwoStateFilter
+from lostx.core.route.heading import HeadingFilter, VoteTally
 from lostx.core.describe.keypoints import frame_evidence
 from lostx.core.match.matcher import heading_vote
 from lostx.core.match.verify import verify

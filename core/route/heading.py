@@ -33,37 +33,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from filterpy.discrete_bayes import predict, update
 
 from ..config import HeadingConfig
 from ..frame import HEADINGS, Heading
-
-
-class TwoStateFilter:
-    """A discrete Bayes filter over two states fed with votes (> 0 for the second state, < 0 for the first,
-    0 none), each ``reliability`` likely to be right, the state swapping with probability ``switch``."""
-
-    def __init__(self, states: tuple[str, str], reliability: float, switch: float) -> None:
-        self.states = states
-        self.reliability = reliability
-        self.switch = switch
-        self.reset()
-
-    def reset(self, prior: np.ndarray | None = None) -> None:
-        self.belief = np.full(2, 0.5) if prior is None else np.asarray(prior, dtype=np.float64)
-
-    def update(self, vote: float) -> tuple[str, float]:
-        s = self.switch
-        self.belief = predict(self.belief, 0, [s / 2, 1.0 - s, s / 2])  # on two states: a swap with probability s
-        if vote != 0.0:
-            # A split vote (its voters disagreeing) counts for less: reliability shrinks towards 1/2.
-            p = 0.5 + (self.reliability - 0.5) * min(abs(vote), 1.0)
-            self.belief = update(np.array([1.0 - p, p] if vote > 0 else [p, 1.0 - p]), self.belief)
-        return self.answer()
-
-    def answer(self) -> tuple[str, float]:
-        best = int(np.argmax(self.belief))
-        return self.states[best], float(self.belief[best])
 
 
 VOTERS: tuple[str, ...] = ("mirror", "motion")
