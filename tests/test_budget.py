@@ -139,3 +139,19 @@ def test_a_signal_while_the_service_starts_ends_it_within_a_second(signum, thumb
     stderr = proc.stderr.read()
     assert proc.returncode == 130 and took < 1.0, (took, stderr)
     assert f"lostx: interrupted: {signal.Signals(signum).name} while starting; nothing was served" in stderr
+
+
+def test_map_info_sizes_a_map_up_to_a_city(thumb_map, capsys):  # noqa: F811 (fixture)
+    """``lostx map info`` says what a million frames like the map's would take: on disk at the map's own bytes per
+    frame, and a stream's working memory and saved state as the budget counts them (costs looked up at that size, so
+    nothing map-wide is held and no state is saved)."""
+    from lostx.cli import main
+    from lostx.commands.map import SCALE_FRAMES
+
+    assert main(["map", "info", str(thumb_map.path)]) == 0
+    (line,) = [line for line in capsys.readouterr().out.splitlines() if line.startswith("scale")]
+    per_frame = thumb_map.nbytes / thumb_map.n_frames
+    working = stream_bytes(Config(), SCALE_FRAMES)
+    assert f"{SCALE_FRAMES:,} such frames: {format_bytes(per_frame * SCALE_FRAMES)} on disk" in line
+    assert f"working memory {format_bytes(working)}" in line and "no saved state" in line
+    assert state_bytes(Config(), SCALE_FRAMES) == 0 and working < stream_bytes(Config(), 100_000)

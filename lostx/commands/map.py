@@ -121,6 +121,7 @@ def _layout_line(refmap, traverse) -> str:  # noqa: ANN001 (ReferenceMap, Traver
 
 
 def run_info(args: argparse.Namespace) -> int:
+    from lostx.core.config import load_config
     from lostx.core.maps.refmap import ReferenceMap
 
     refmap = ReferenceMap.open(args.map, verify_checksums=args.verify)
@@ -146,6 +147,7 @@ def run_info(args: argparse.Namespace) -> int:
               f"{looks['brightness'][1]:.0f} of 255")
     print(f"positions  {'yes' if refmap.positions is not None else 'no'}")
     print(f"size       {refmap.nbytes / 1e6:.2f} MB ({refmap.nbytes / refmap.n_frames / 1e3:.1f} kB per frame)")
+    print("scale      " + scale_line(refmap.nbytes / refmap.n_frames, load_config(args.config)))
     index = m.get("index")
     if index:
         print(f"index      {index['metric']} HNSW over 8-bit codes ({index['neighbours']} neighbours), "
@@ -157,6 +159,23 @@ def run_info(args: argparse.Namespace) -> int:
         if index:
             _print_recall(refmap, args)
     return 0
+
+
+SCALE_FRAMES = 1_000_000
+"""The map size ``lostx map info`` sizes a map up to: a city at a frame every 2 m."""
+
+
+def scale_line(bytes_per_frame: float, config) -> str:  # noqa: ANN001 (Config: imported lazily)
+    """What a map of :data:`SCALE_FRAMES` frames at ``bytes_per_frame`` would take: on disk (the map's arrays are
+    memory-mapped, read as they are matched), one stream's working memory and its saved state with ``config``
+    (:mod:`lostx.core.budget`)."""
+    from lostx.core.budget import format_bytes, state_bytes, stream_bytes
+
+    n = SCALE_FRAMES
+    state = state_bytes(config, n)
+    saved = f"its saved state {format_bytes(state)}" if state else "no saved state (costs looked up)"
+    return (f"a map of {n:,} such frames: {format_bytes(bytes_per_frame * n)} on disk, memory-mapped; one stream's "
+            f"working memory {format_bytes(stream_bytes(config, n))}, {saved}")
 
 
 def _print_recall(refmap, args: argparse.Namespace) -> None:  # noqa: ANN001 (ReferenceMap: imported lazily)
