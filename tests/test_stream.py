@@ -764,7 +764,8 @@ def test_a_live_listener_that_falls_behind_counts_what_it_missed(thumb_map, nord
         wait_for(caught_up, 60, "the slow listener to hear of the last answer")
         last = slow.stats[-1].seq
     got = len(slow.results) + len(slow.errors)
-    assert slow.listener.missed > 100 and slow.listener.missed + got == last
+    # How many answers the service gives depends on the machine; a listener this slow misses more than it hears.
+    assert slow.listener.missed > got > 0 and slow.listener.missed + got == last
     assert slow.listener.recovered == 0  # no journal: nothing to recover from
     ids = slow.ids()
     assert ids == sorted(ids)
