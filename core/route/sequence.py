@@ -292,9 +292,13 @@ class SequenceFilter:
         if self.route is None:
             times = np.asarray(self._times, dtype=np.float64)
             return self._anchor_r[rows, None] + self._speed[rows, None] * (times - self._anchor_t[rows, None])
-        progress = np.asarray(self._progress)
-        along = self._anchor_p[rows, None] + self._speed[rows, None] * (progress - self._anchor_q[rows, None])
-        return self._at_route(along)
+        return self._at_route(self._along(rows))
+
+    def _along(self, rows: np.ndarray | slice, frames: np.ndarray | slice = slice(None)) -> np.ndarray:
+        """(len(rows), frames) the route positions of the trajectories ``rows`` at the window's ``frames`` (following
+        the distance travelled)."""
+        progress = np.asarray(self._progress)[frames]
+        return self._anchor_p[rows, None] + self._speed[rows, None] * (progress - self._anchor_q[rows, None])
 
     def _entered(self, counted: np.ndarray | slice) -> np.ndarray:
         """(trajectories,) the first of the ``counted`` frames at which each trajectory lies on the map (their number
@@ -304,9 +308,7 @@ class SequenceFilter:
             on_map = ((where >= 0) & (where < self.costs.n_refs))[:, counted]
         else:
             # On the route is on the map (:meth:`_at_route`): a bounds check, without placing every line on it.
-            progress = np.asarray(self._progress)[counted]
-            along = self._anchor_p[:, None] + self._speed[:, None] * (progress - self._anchor_q[:, None])
-            on_map = (along >= self.route[0] - 1e-9) & (along <= self.route[-1] + 1e-9)
+            on_map = self._within_route(self._along(slice(None), counted))
         return np.where(on_map.any(axis=1), on_map.argmax(axis=1), on_map.shape[1])
 
     def _evaluate(self) -> None:
@@ -353,8 +355,11 @@ class SequenceFilter:
         """The reference position (fractional index) at route positions ``along``; NaN beyond the map's ends."""
         if self.route is None:
             return along
-        inside = (along >= self.route[0] - 1e-9) & (along <= self.route[-1] + 1e-9)
-        return np.where(inside, np.interp(along, self.route, np.arange(len(self.route))), np.nan)
+        return np.where(self._within_route(along), np.interp(along, self.route, np.arange(len(self.route))), np.nan)
+
+    def _within_route(self, along: np.ndarray) -> np.ndarray:
+        """Whether route positions ``along`` lie within the map's route."""
+        return (along >= self.route[0] - 1e-9) & (along <= self.route[-1] + 1e-9)
 
     def best_by_sign(self) -> tuple[float, float]:
         """The lowest own mean cost (:meth:`means`) among the live trajectories on the map with the reference index
