@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from common import RESULTS, markdown_table, print_table, write_json
+from common import markdown_table, parse, print_table, write_json
 from lostx.core import Config
 from scenes import PAIRINGS, RATES, SAME, SCENES, Counts, Study, variant
 
@@ -51,10 +51,8 @@ def log_likelihood(counts: Counts) -> float:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--quick", action="store_true", help="the default only, S1 at 2 Hz: a check that it runs")
     parser.add_argument("--rates", default="2 Hz", help="comma-separated: " + ", ".join(RATES))
-    parser.add_argument("--out", type=Path, default=RESULTS / "study_heading.json")
-    args = parser.parse_args()
+    args = parse(parser, "study_heading", quick="the default only, S1 at 2 Hz")
     variants, pairings, rates = VARIANTS, (*PAIRINGS, *SAME), tuple(r.strip() for r in args.rates.split(","))
     if args.quick:
         default = next(n for n in VARIANTS if "(default)" in n)

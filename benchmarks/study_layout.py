@@ -23,7 +23,7 @@ from unittest import mock
 
 import numpy as np
 
-from common import RESULTS, markdown_table, print_table, write_json
+from common import markdown_table, parse, print_table, write_json
 from lostx.core import Config
 from scenes import HEADLINE, MODES, PAIRINGS, RATES, SCENES, Study, chosen_on, figure, rule, variant
 
@@ -132,9 +132,7 @@ def main() -> None:
     parser.add_argument("--pairings", default=",".join(HEADLINE),
                         help="comma-separated, of " + ", ".join(PAIRINGS) + " (the rule reads S1 and S2; "
                              "study_scenes.py runs all four with the settings chosen)")
-    parser.add_argument("--quick", action="store_true", help="two variants, S1 only: a check that the study runs")
-    parser.add_argument("--out", type=Path, default=RESULTS / "study_layout.json")
-    args = parser.parse_args()
+    args = parse(parser, "study_layout", quick="two variants, S1 only")
     rates = tuple(r.strip() for r in args.rates.split(","))
     families = {f: FAMILIES[f] for f in args.families.split(",")}
     pairings = tuple(p.strip() for p in args.pairings.split(","))

@@ -2,8 +2,8 @@
 layout and appearance (GeM) on the same frames.
 
 Every family of ``study_layout.py`` (its JSON, ``benchmarks/results/study_layout.json``) has a variant chosen on
-each scene (:func:`scenes.chosen_on`). The settings chosen on one scene are those variants together; they run on the other scene, both ways,
-all four pairings, at 2 Hz and 1 Hz, heading not declared (:mod:`scenes`). The defaults run beside them (chosen on
+each scene (:func:`scenes.chosen_on`). The settings chosen on one scene are those variants together; they run on the
+other scene, both ways, all four pairings, at 2 Hz and 1 Hz, heading not declared (:mod:`scenes`). The defaults run beside them (chosen on
 both scenes by the rule: in-sample, secondary).
 
     python benchmarks/study_scenes.py [--families benchmarks/results/study_layout.json] [--quick]
@@ -21,7 +21,7 @@ import tempfile
 from contextlib import ExitStack, nullcontext
 from pathlib import Path
 
-from common import RESULTS, markdown_table, print_table, write_json
+from common import RESULTS, markdown_table, parse, print_table, write_json
 from lostx.core import Config
 from scenes import MODES, PAIRINGS, RATES, SCENES, Counts, Study, chosen_on, variant
 from study_layout import FAMILIES, MEASURED
@@ -92,9 +92,7 @@ def row(label: str, results: dict, scene: str, rate: str) -> list[str]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--families", type=Path, default=RESULTS / "study_layout.json")
-    parser.add_argument("--quick", action="store_true", help="the defaults on S1 at 2 Hz: a check that it runs")
-    parser.add_argument("--out", type=Path, default=RESULTS / "study_scenes.json")
-    args = parser.parse_args()
+    args = parse(parser, "study_scenes", quick="the defaults on S1 at 2 Hz")
     families = json.loads(args.families.read_text())["families"] if args.families.is_file() else {}
     rates = ("2 Hz",) if args.quick else tuple(RATES)
     pairings = ("S1",) if args.quick else tuple(PAIRINGS)
@@ -106,7 +104,8 @@ def main() -> None:
             runs[label] = (config, [], [])
     report: dict[str, dict] = {}
     markdown = ["# Each nuScenes scene with the settings chosen on the other one\n",
-                "Written by `python benchmarks/study_scenes.py`. Recall@1 at 7.5 m of the look-at points (single, sequence) and frames whose heading is right, heading not declared.\n"]
+                "Written by `python benchmarks/study_scenes.py`. Recall@1 at 7.5 m of the look-at points (single, "
+                "sequence) and frames whose heading is right, heading not declared.\n"]
     with tempfile.TemporaryDirectory() as tmp:
         study = Study(Path(tmp))
         results = {}
