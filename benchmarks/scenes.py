@@ -138,6 +138,10 @@ class Study:
         warnings.simplefilter("ignore")
 
     def refmap(self, run: Run, config: Config) -> ReferenceMap:
+        """The run's map, built as ``lostx map build`` builds it: with the layout (and the map's motion) whatever
+        ``config.layout.enabled`` says; a setting that turns the layout off does so when matching, as ``lostx eval``
+        does for LoST-X without the layout."""
+        config = variant(config, layout={"enabled": Config().layout.enabled})
         key = json.dumps([run.scene, {**PAIRINGS, **SAME}[run.pairing][0], run.pairing in SAME, run.start, run.every,
                           dataclasses.asdict(config.layout), dataclasses.asdict(config.motion)], default=str)
         if key not in self._maps:
@@ -148,14 +152,17 @@ class Study:
 
     def matches(self, run: Run, config: Config, patch: Patch = nullcontext) -> tuple[ReferenceMap, list[FrameMatch]]:
         """The run's queries matched with ``config`` (described once per map-building settings and patch: a patch
-        may change how frames are described)."""
+        may change how frames are described). Like the map, the queries are described with the layout, as ``lostx
+        eval`` describes them once for every method; a setting that turns the layout off does so when matching."""
         refmap = self.refmap(run, config)
-        key = json.dumps([run.scene, run.pairing, run.start, run.every, dataclasses.asdict(config.layout),
+        described = variant(config, layout={"enabled": Config().layout.enabled})
+        key = json.dumps([run.scene, run.pairing, run.start, run.every, dataclasses.asdict(described.layout),
                           dataclasses.asdict(config.motion), dataclasses.asdict(config.lost),
                           None if patch is nullcontext else id(patch)], default=str)
-        matcher = PlaceMatcher(refmap, config, self.backbone)
         if key not in self._described:
-            self._described[key] = [matcher.describe(f, appearance=True) for f in run.frames]
+            describer = PlaceMatcher(refmap, described, self.backbone)
+            self._described[key] = [describer.describe(f, appearance=True) for f in run.frames]
+        matcher = PlaceMatcher(refmap, config, self.backbone)
         return refmap, [matcher.match_description(d) for d in self._described[key]]
 
     def counts(self, config: Config, scene: str, pairing: str, every: int = 1,
