@@ -548,7 +548,7 @@ def test_a_car_park_of_turns_is_matched_from_its_other_end_with_the_defaults(sce
     """scene-0916 (a Singapore car park, mostly turns, its cameras' views 85 to 130 degrees apart on them), the
     paper's setup, nothing declared: the defaults, which the rule chose on both scenes (benchmarks/study_layout.py),
     measured 12 of 26 single frames and 15 with the sequence right, the heading right in 39 of 41 frames; LoST-X
-    without the layout 7 and 3, appearance alone 12 and 14 (benchmarks/study_scenes.py)."""
+    without the layout 5 and 8, appearance alone 12 and 13 (benchmarks/study_scenes.py)."""
     park = scene.parent / "scene-0916"
     build_map(open_traverse(park / "rear", options=LOOK_AT), tmp_path / "rear", describer=LostDescriber(mosaic),
               progress=False)
