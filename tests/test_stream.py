@@ -751,6 +751,7 @@ def test_a_live_listener_that_falls_behind_counts_what_it_missed(thumb_map, nord
     service = LocalizerService(localizer_factory(thumb_map, Config()), config, log=lambda text: None)
     slow = Collector(results, delay=lambda n: 0.1, hwm=1, rcvbuf=4096)
     with serving(service, slow):
+        started = time.monotonic()
         with FramePublisher(frames) as publisher:
             replay(list(folder_traverse(nordland / "winter"))[:800], publisher, Pace("rate", 400.0),
                    progress=False, wait=30)
@@ -763,9 +764,12 @@ def test_a_live_listener_that_falls_behind_counts_what_it_missed(thumb_map, nord
 
         wait_for(caught_up, 60, "the slow listener to hear of the last answer")
         last = slow.stats[-1].seq
+        elapsed = time.monotonic() - started
     got = len(slow.results) + len(slow.errors)
-    # How many answers the service gives depends on the machine; a listener this slow misses more than it hears.
-    assert slow.listener.missed > got > 0 and slow.listener.missed + got == last
+    # How many answers the service gives depends on the machine; the listener hears at its own pace (10 a
+    # second, plus what the queues held) and counts the rest as missed.
+    assert 0 < got <= 10 * elapsed + 20
+    assert slow.listener.missed > 0 and slow.listener.missed + got == last
     assert slow.listener.recovered == 0  # no journal: nothing to recover from
     ids = slow.ids()
     assert ids == sorted(ids)
