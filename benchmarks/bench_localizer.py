@@ -226,12 +226,17 @@ def step_stages(refmap: ReferenceMap, refs: DescriptorMap, steps: int, one_direc
     # Declared and trusted, the heading is known and so is the direction of travel: one sign searched.
     frame = Frame(0, np.zeros((32, 64, 3), dtype=np.uint8), camera="front" if one_direction else None)
     stages: dict[str, list[float]] = {"costs": [], "sequence": [], "tracker": []}
+    scores: list[float] = []
     for _ in range(steps):
+        before = getattr(localizer.sequence.costs, "computed", 0)
         estimate = localizer.step(frame)
         for k in stages:
             stages[k].append(estimate.latency_ms[k])
+        scores.append(getattr(localizer.sequence.costs, "computed", 0) - before)
     stages["search"] = answers.search_ms
     stages["state"] = [estimate.state == "localized"]  # type: ignore[list-item]
+    # Scores looked up (each a map row read, a descriptor distance) per step, once the window is full.
+    stages["scores"] = scores[config.sequence.length:] or scores
     return stages
 
 
@@ -281,6 +286,8 @@ def run_size(n: int, real: np.ndarray, steps: int, queries: int, threads: int, r
                                                                                     "tracker")))]),
         "step_exact": summary([sum(v) for v in zip(*(exact[k] for k in ("search", "costs", "sequence", "tracker")))]),
         "tracker": summary(both["tracker"]),
+        "scores_per_frame": float(np.median(both["scores"])),
+        "scores_per_frame_one_direction": float(np.median(one["scores"])),
         "localized_at_end": bool(both["state"][0]),
     }
 
@@ -303,6 +310,7 @@ def report(args: argparse.Namespace, real: ReferenceMap) -> None:
         rows.append([r["map_frames"], r["search_index"]["median_ms"], r["search_exact"]["median_ms"],
                      r["exact_over_index"], r["recall_at_10"], r["costs"]["median_ms"],
                      r["costs_one_direction"]["median_ms"],
+                     f'{r["scores_per_frame"]:.0f} / {r["scores_per_frame_one_direction"]:.0f}',
                      r["costs_after_exact_search"]["median_ms"], r["sequence"]["median_ms"],
                      r["sequence"]["p90_ms"], r["tracker"]["median_ms"], r["after_network_index_ms"],
                      r["after_network_index_one_direction_ms"],
@@ -311,7 +319,7 @@ def report(args: argparse.Namespace, real: ReferenceMap) -> None:
           f"(median, real Nordland map and queries; independent of the map's size)")
     print_table("Everything after the network, per frame (median ms; sequence p90 too)",
                 ["map frames", "search (index)", "search (exact)", "exact / index", "index Recall@10", "costs",
-                 "costs (one direction)", "costs (exact search)", "sequence", "sequence p90", "tracker",
+                 "costs (one direction)", "rows read (both / one direction)", "costs (exact search)", "sequence", "sequence p90", "tracker",
                  "after network (index)", "after network (index, one direction)", "after network (exact)",
                  "kB per map frame"], rows)
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6

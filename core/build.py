@@ -295,6 +295,28 @@ def _cut(frames: Iterable[Frame] | FrameSource, start: int, stop: int | None) ->
             yield index, frame
 
 
+def map_metadata(frames: Iterable[Frame] | FrameSource, config: Config, describer: LostDescriber | ThumbnailDescriber,
+                 metadata: dict | None = None) -> dict:
+    """What a map's manifest records of how its frames were described: the settings, and for a LoST map its classes,
+    the network's view of the frames and, where the traverse's camera is calibrated, the layout's grid and camera."""
+    meta = dict(metadata or {})
+    meta["settings"] = config.to_dict()
+    if isinstance(describer, LostDescriber):
+        meta["classes"] = describer.groups.spec()
+        meta["label_names"] = list(describer.groups.label_names)
+        geometry = Geometry.for_backbone(config.camera, config.camera.view_hfov_deg, config.backbone.fit,
+                                         describer.backbone.info)
+        meta["geometry"] = geometry.record()
+        camera = getattr(frames, "geometry", None)
+        if camera is not None and layout_placer(config, describer) is not None:
+            grid = ("cell", "length", "width", "centre", "max_range", "blur", "map_travel", "max_frames")
+            meta["layout"] = {"settings": {name: getattr(config.layout, name) for name in grid},
+                              "geometry": camera.to_dict()}
+    else:
+        meta["thumbnail"] = describer.settings()
+    return meta
+
+
 def build_map(
     frames: Iterable[Frame] | FrameSource,
     out: str | Path,
@@ -322,21 +344,7 @@ def build_map(
     start = time.perf_counter()
     kind: MapKind = "lost" if isinstance(describer, LostDescriber) else "thumbnail"
     info = describer.backbone.info if isinstance(describer, LostDescriber) else None
-    meta = dict(metadata or {})
-    meta["settings"] = config.to_dict()
-    if isinstance(describer, LostDescriber):
-        meta["classes"] = describer.groups.spec()
-        meta["label_names"] = list(describer.groups.label_names)
-        geometry = Geometry.for_backbone(config.camera, config.camera.view_hfov_deg, config.backbone.fit,
-                                         describer.backbone.info)
-        meta["geometry"] = geometry.record()
-        camera = getattr(frames, "geometry", None)
-        if camera is not None and layout_placer(config, describer) is not None:
-            grid = ("cell", "length", "width", "centre", "max_range", "blur", "map_travel", "max_frames")
-            meta["layout"] = {"settings": {name: getattr(config.layout, name) for name in grid},
-                              "geometry": camera.to_dict()}
-    else:
-        meta["thumbnail"] = describer.settings()
+    meta = map_metadata(frames, config, describer, metadata)
     n_frames = len(frames) if hasattr(frames, "subset") and hasattr(frames, "__len__") else None  # type: ignore[arg-type]
     if cluster is not None and n_frames is None:
         raise MapError("describing on a cluster needs a traverse that can be cut into ranges (a folder, a dataset)")

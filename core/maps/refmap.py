@@ -60,7 +60,8 @@ from .index import ApproximateIndex, file_sha256
 
 
 class ReferenceMap:
-    """A map opened for matching: descriptors in memory, keypoint evidence memory-mapped."""
+    """A map opened for matching: its arrays memory-mapped, the descriptors (LoST and appearance) read into memory
+    when every map frame is compared."""
 
     def __init__(self, path: Path, manifest: dict[str, Any], arrays: dict[str, np.ndarray]) -> None:
         self.path = path
@@ -70,9 +71,7 @@ class ReferenceMap:
         self.names: list[str] = list(manifest["frames"])
         self._descriptors: np.ndarray | None = None
         self.positions: np.ndarray | None = arrays.get("positions")
-        self.appearance: np.ndarray | None = (
-            np.asarray(arrays["appearance"], dtype=np.float32) if "appearance" in arrays else None
-        )
+        self._appearance: np.ndarray | None = None
         self.timestamps: np.ndarray | None = arrays.get("timestamps")
         self._index: ApproximateIndex | None = None
         self._layout_stacks: dict[bool, GridStack] = {}
@@ -135,6 +134,24 @@ class ReferenceMap:
         if self._descriptors is None:
             self._descriptors = np.asarray(self._arrays["descriptors"], dtype=self._descriptor_dtype)
         return self._descriptors
+
+    @property
+    def has_appearance(self) -> bool:
+        """Whether the map holds its frames' GeM descriptors (the appearance cue's)."""
+        return "appearance" in self._arrays
+
+    @property
+    def appearance(self) -> np.ndarray | None:
+        """(N, D) every frame's GeM descriptor in memory (float32), None for a map without them. Read on first use:
+        only a comparison with every map frame needs them all (:meth:`appearance_rows` reads a few)."""
+        if self._appearance is None and self.has_appearance:
+            self._appearance = np.asarray(self._arrays["appearance"], dtype=np.float32)
+        return self._appearance
+
+    def appearance_rows(self, indices: np.ndarray) -> np.ndarray:
+        """The GeM descriptors of map frames ``indices`` (float32), from memory or from the memory map."""
+        source = self._appearance if self._appearance is not None else self._arrays["appearance"]
+        return np.asarray(source[np.asarray(indices, dtype=np.int64)], dtype=np.float32)
 
     def descriptor_rows(self, indices: np.ndarray) -> np.ndarray:
         """The descriptors of map frames ``indices``, read from memory or from the memory map."""

@@ -328,7 +328,7 @@ class PlaceMatcher:
     def appearance_cue(self) -> bool:
         """Whether appearance takes part as a cue: the map holds its descriptors and ``cues.appearance`` is on."""
         return (self.config.cues.appearance and self.config.verify.enabled and self.map.kind == "lost"
-                and self.map.appearance is not None)
+                and self.map.has_appearance)
 
     def describe(self, frame: Frame, appearance: bool = False, compare: bool = False) -> QueryDescription:
         """Run the network on a LoST query frame, and place it on the road with its layout where that is on
@@ -456,7 +456,7 @@ class PlaceMatcher:
             flipped = query.reshape(self.describer.size[1], -1)[:, ::-1].ravel()
             return self._thumbnail_match({"same": query, "opposite": flipped}, t0, removed)
         layout = self.map.layout_grid(index) if self._live is not None else None
-        appearance = self.map.appearance[index] if self.appearance_cue else None  # type: ignore[index]
+        appearance = self.map.appearance_rows(np.array([index]))[0] if self.appearance_cue else None
         return self._search_and_verify(query, self.map.evidence([index]), self.map.labels(index), {}, t0, removed,
                                        layout, appearance)
 
@@ -562,13 +562,11 @@ class AppearanceDistances:
         self._every: np.ndarray | None = None
 
     def __call__(self, refs: np.ndarray | None = None) -> np.ndarray:
-        stored = self.map.appearance
-        assert stored is not None
         if self._every is None and refs is None:
-            self._every = cosine_distances(self.query, stored)
+            self._every = cosine_distances(self.query, self.map.appearance)  # type: ignore[arg-type]
         if self._every is not None:
             return self._every if refs is None else self._every[refs]
-        return cosine_distances(self.query, stored[np.asarray(refs, dtype=np.int64)])
+        return cosine_distances(self.query, self.map.appearance_rows(refs))
 
 
 def combined_result(result: MatchResult, weights: dict[str, float], top_k: int, exclusion: int) -> MatchResult:
