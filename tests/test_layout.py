@@ -58,6 +58,18 @@ def test_a_grid_is_most_like_itself_and_a_turned_grid_like_its_turn(rng):
     assert np.array_equal(grids[2].turned().turned().values, grids[2].values)
 
 
+@pytest.mark.parametrize("n", [257, 385])
+def test_a_stack_whose_last_block_holds_one_grid_more_compares_every_grid(rng, n):
+    """Grids are compared in blocks of 128, the last taking a lone grid in: 257 grids (or any 128 k + 1, as the rows a
+    city map's sequence filter looks up often are) compare as each grid alone does."""
+    grids = [_grid(rng, shape=(8, 6)) for _ in range(n)]
+    query = grids[n - 1]
+    scores = similarity(query, GridStack.of(grids), WEIGHTS)
+    alone = [similarity(query, GridStack.of([g, g]), WEIGHTS)[0] for g in grids[-3:]]
+    assert scores[n - 1] == pytest.approx(1.0)
+    np.testing.assert_allclose(scores[-3:], alone, rtol=1e-5)
+
+
 def test_a_sideways_shift_within_reach_is_found(rng):
     grid = _grid(rng, seen=1.0)
     moved = LayoutGrid(np.roll(grid.values, 1, axis=2), np.roll(grid.mask, 1, axis=1))

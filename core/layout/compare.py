@@ -260,7 +260,8 @@ def query_sums(maps: GridStack, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, 
     cross_right = np.ascontiguousarray(q.transpose(1, 0, 2)).transpose(0, 2, 1)  # (C, P, V)
     own = np.empty((maps.n, 2 * v * c), dtype=np.float32)
     cross = np.empty((maps.n, c, v), dtype=np.float32)
-    widened = np.empty(maps.blocks[0][1].size if maps.n else 0, dtype=np.float32)  # one block's cells, in cache
+    # The largest block's cells (the last block may hold one grid more than the others), in cache.
+    widened = np.empty(max((stored.size for _, stored in maps.blocks), default=0), dtype=np.float32)
     for block, stored in maps.blocks:
         cells = widened[: stored.size].reshape(stored.shape)  # (1 + C, P, n)
         np.copyto(cells, stored)
