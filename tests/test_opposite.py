@@ -561,3 +561,60 @@ def test_a_car_park_of_turns_is_matched_from_its_other_end_with_the_defaults(sce
         figures[sequence] = (int(right[matchable].sum()), int(matchable.sum()),
                              [e.heading for e in estimates].count("opposite"))
     assert figures == {False: (12, 26, 39), True: (15, 26, 39)}
+
+
+def test_a_large_maps_grids_are_read_from_the_map_as_the_whole_stack_gives_them(maps, monkeypatch):
+    """A map too large to compare every frame leaves its grids in the memory map and reads those the sequence filter
+    asks for: the same levels, masks and totals as the whole stack's rows, so the same scores, and the whole stack
+    (some 6 kB a frame per heading) is never made."""
+    from lostx.core.layout.grid import CHANNELS
+    from lostx.core.match import combined
+    from lostx.core.match.combined import LayoutComparison
+
+    rear = ReferenceMap.open(maps["rear"].path)
+    refs = np.array([0, 5, 17, 39, 3, 5])
+    for heading in ("same", "opposite"):
+        whole, stored = maps["rear"].layout_stack(heading).rows(refs), rear.stored_grids(heading).rows(refs)
+        for name in ("grids", "totals", "square_totals", "scale"):
+            assert np.array_equal(getattr(whole, name), getattr(stored, name)), (heading, name)
+    monkeypatch.setattr(combined, "EVERY_FRAME_MAX", 10)  # 40 frames: a large map
+    weights = np.ones(len(CHANNELS))
+    grid = rear.layout_grid(21)
+    turns = (-5.0, 0.0, 5.0)
+    in_memory = LayoutComparison(grid, maps["rear"].layout_stack(), weights, 1, 25, turns,
+                                 maps["rear"].layout_stack("opposite"))
+    read = LayoutComparison(grid, rear.stored_grids(), weights, 1, 25, turns, rear.stored_grids("opposite"))
+    for row in (0, 1):
+        np.testing.assert_array_equal(in_memory.at(refs, row), read.at(refs, row))
+    assert read.at(np.array([21]), 0)[0] == pytest.approx(1.0, abs=1e-4)
+    assert rear._layout_stacks == {}
+
+
+def test_a_large_maps_layout_is_compared_only_where_the_localizer_looks(scene, maps, mosaic, monkeypatch):
+    """On a city map (its sequence costs looked up) the layout is compared at the frames something looks at (the
+    search's nearest, the candidates, the trajectories, the sample its spread is measured on), each grid once a frame
+    under each heading however often it is asked for, from the grids read off the map: the whole stack is never
+    made. Made a city map here by lowering the bound to 10 frames (a 40-frame map's neighbourhoods still cover it)."""
+    from lostx.core import localizer as localizer_module
+    from lostx.core.match import combined, matcher
+
+    for module in (combined, matcher, localizer_module):
+        monkeypatch.setattr(module, "EVERY_FRAME_MAX", 10)
+    monkeypatch.setattr(combined, "SAMPLE", 8)
+    compared: dict[object, int] = {}  # by comparison (kept alive: one per frame)
+    real_compare = combined.LayoutComparison._compare
+
+    def counting(self, rows, refs=None):  # noqa: ANN001, ANN202
+        compared[self] = compared.get(self, 0) + (self.maps.n if refs is None else len(refs))
+        return real_compare(self, rows, refs)
+
+    monkeypatch.setattr(combined.LayoutComparison, "_compare", counting)
+    rear = ReferenceMap.open(maps["rear"].path)
+    queries = open_traverse(scene / "front", options=LOOK_AT)
+    estimates = _run(rear, queries, mosaic, sequence=SequenceConfig(costs="looked-up"), declared=False)
+    right, matchable = _right(estimates, rear, queries)
+    assert rear._layout_stacks == {}
+    # A frame compares each grid once at most under each heading, whatever asks for it how often.
+    assert compared and max(compared.values()) <= 2 * rear.n_frames
+    # Measured: 28 of 34, as with every grid compared in memory (LoST-X without the layout: 11).
+    assert int(right[matchable].sum()) == 28 and int(matchable.sum()) == 34

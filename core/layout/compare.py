@@ -26,7 +26,7 @@ from typing import Sequence
 
 import numpy as np
 
-from .grid import LayoutGrid
+from .grid import LayoutGrid, stored_half, unpack_levels
 
 
 class GridStack:
@@ -87,6 +87,24 @@ class GridStack:
         out._set(grids, np.ascontiguousarray(grids.transpose(1, 2, 0)), self.scale, self.totals[:, indices],
                  self.square_totals[:, indices])
         return out
+
+
+class StoredGrids:
+    """A map's grids left where they are stored (memory-mapped rows of :func:`~.grid.pack_both`'s values and mask
+    bits), read a few at a time: a large map compares only the frames its sequence filter looks at, and the whole
+    stack (some 6 kB a frame per heading) would not fit in memory at a city's size."""
+
+    def __init__(self, values: np.ndarray, bits: np.ndarray, shape: tuple[int, int], other_end: bool) -> None:
+        self.values, self.bits, self.shape, self.other_end = values, bits, shape, other_end
+        self.n = len(values)
+
+    def rows(self, indices: np.ndarray) -> GridStack:
+        """The grids ``indices`` as a stack of their own, as :meth:`GridStack.rows` of the whole map's stack gives
+        them (the same levels, masks and totals)."""
+        indices = np.asarray(indices, dtype=np.int64)
+        values, bits = stored_half(np.asarray(self.values[indices]), np.asarray(self.bits[indices]), self.shape,
+                                   self.other_end)
+        return GridStack(*unpack_levels(values, bits, self.shape))
 
 
 def _stack_of_grids(grids: np.ndarray, scale: np.ndarray) -> GridStack:

@@ -52,7 +52,7 @@ from ..describe.lost import DescriptorStats
 from ..errors import MapError
 from ..frame import Heading
 from ..geometry import CameraGeometry
-from ..layout.compare import GridStack
+from ..layout.compare import GridStack, StoredGrids
 from ..layout.grid import LayoutGrid, grid_shape, holds_both, stored_half, unpack, unpack_levels
 from ..motion.odometer import forwards
 from .format import BACKBONE_IDENTITY, MAP_FORMAT, READABLE_VERSIONS, MapKind, backbone_dict, backbone_identity
@@ -75,6 +75,7 @@ class ReferenceMap:
         self.timestamps: np.ndarray | None = arrays.get("timestamps")
         self._index: ApproximateIndex | None = None
         self._layout_stacks: dict[bool, GridStack] = {}
+        self._stored_grids: dict[bool, StoredGrids] = {}
         self.backbone: dict[str, Any] | None = manifest.get("backbone")
         if self.kind == "lost":
             self.stats = DescriptorStats(arrays["stats_mean"], arrays["stats_std"], len(self.names))
@@ -234,6 +235,17 @@ class ReferenceMap:
             self._layout_stacks[other_end] = GridStack(*unpack_levels(
                 *stored_half(self._arrays["layout_values"], self._arrays["layout_mask"], shape, other_end), shape))
         return self._layout_stacks[other_end]
+
+    def stored_grids(self, heading: Heading = "same") -> StoredGrids:
+        """The map frames' layout grids as :meth:`layout_stack` gives them, left in the memory map and read a few at a
+        time (one object for both headings on a map that stores no other ends)."""
+        other_end = heading == "opposite" and self.stores_other_ends
+        if other_end not in self._stored_grids:
+            settings = self.layout_settings
+            assert settings is not None
+            self._stored_grids[other_end] = StoredGrids(self._arrays["layout_values"], self._arrays["layout_mask"],
+                                                        grid_shape(settings), other_end)
+        return self._stored_grids[other_end]
 
     @property
     def progress(self) -> np.ndarray | None:

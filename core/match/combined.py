@@ -22,7 +22,7 @@ from typing import Protocol
 
 import numpy as np
 
-from ..layout.compare import Alignment, GridStack, aligned, refined, similarities
+from ..layout.compare import Alignment, GridStack, StoredGrids, aligned, refined, similarities
 from ..layout.grid import Gathering, LayoutGrid, as_grid
 from ..config import CUES
 from .scores import MapScores
@@ -61,8 +61,9 @@ class LayoutComparison:
     a few degrees and shifted sideways, the opposite heading's against the grids as each stretch's other end sees
     it (``opposite``, where the map stores them)."""
 
-    def __init__(self, grid: LayoutGrid | Gathering, maps: GridStack, weights: np.ndarray, shifts: int,
-                 min_cells: int, turns: tuple[float, ...] = (0.0,), opposite: GridStack | None = None) -> None:
+    def __init__(self, grid: LayoutGrid | Gathering, maps: GridStack | StoredGrids, weights: np.ndarray, shifts: int,
+                 min_cells: int, turns: tuple[float, ...] = (0.0,),
+                 opposite: GridStack | StoredGrids | None = None) -> None:
         self.source = grid
         """The frame's grid, or the gathering that gives it (gathered where the comparison runs)."""
         self._views: tuple[LayoutGrid, LayoutGrid] | None = None
@@ -73,6 +74,8 @@ class LayoutComparison:
         """The map's grids each heading is refined against: as the map's camera saw each stretch, and as its other end
         sees it (gathered in that camera's frame, found on the map's route: :mod:`lostx.core.layout.curve`)."""
         self._every: np.ndarray | None = None
+        self._known = [(np.zeros(0, dtype=np.int64), np.zeros(0)) for _ in (SAME, OPPOSITE)]
+        """On a map too large to compare every frame: each row's map frames compared so far (sorted) and scores."""
         self._future: PendingComparison | None = None
         self.seconds = 0.0
         """Gathering the grid (where it was not yet) and the comparisons took this long (on the thread or in the
@@ -109,10 +112,19 @@ class LayoutComparison:
 
     def at(self, refs: np.ndarray, row: int) -> np.ndarray:
         """Row ``row``'s similarity with the map frames ``refs`` (on a map too large to compare every frame, that
-        row's alone is computed)."""
+        row's alone is computed, each map frame once however often it is asked for)."""
         if self._every is not None or self.maps.n <= EVERY_FRAME_MAX:
             return self.every()[row, refs]
-        return self._compare((row,), refs)[0]
+        known, scores = self._known[row]
+        at = np.clip(np.searchsorted(known, refs), 0, max(len(known) - 1, 0))
+        hit = known[at] == refs if len(known) else np.zeros(len(refs), dtype=bool)
+        missing = np.unique(refs[~hit])
+        if len(missing):
+            known = np.concatenate([known, missing])
+            scores = np.concatenate([scores, self._compare((row,), missing)[0]])
+            order = np.argsort(known, kind="stable")
+            self._known[row] = known, scores = known[order], scores[order]
+        return scores[np.searchsorted(known, refs)]
 
     def _compare(self, rows: tuple[int, ...], refs: np.ndarray | None = None) -> np.ndarray:
         """(len(rows), N): each row's view against every map grid (or those ``refs``) as its camera saw it, in one

@@ -538,9 +538,15 @@ class PlaceMatcher:
         if grid is None or self._live is None:
             return None
         cfg = self.config.layout
-        comparison = LayoutComparison(grid, self.map.layout_stack(), self._layout_weights, self._layout_shifts,
-                                      cfg.min_cells, cfg.turns, self.map.layout_stack("opposite"))
-        if self.map.n_frames <= EVERY_FRAME_MAX:
+        n = self.map.n_frames
+        every = n <= EVERY_FRAME_MAX
+        # Where the sequence costs are looked up (a city map) the grids are compared only where the localizer looks,
+        # read from the map as they are asked for; below that the costs, and so the layout, cover every map frame.
+        stored = looks_up_costs(self.config.sequence, n) and not every
+        grids = self.map.stored_grids if stored else self.map.layout_stack
+        comparison = LayoutComparison(grid, grids(), self._layout_weights, self._layout_shifts, cfg.min_cells,
+                                      cfg.turns, grids("opposite"))
+        if every:
             comparison.start(self._comparer(comparison))
         return comparison
 
