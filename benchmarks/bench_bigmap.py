@@ -6,16 +6,16 @@ repeated along a route as long as asked: each map frame is a real frame's keypoi
 with its LoST and appearance descriptors moved by noise (so that repeats are places of their own, as a city's streets
 are). It is written through the map writer (chunks spooled to disk, arrays and index written at the commit, as a build
 does), then opened and matched in a process of its own per size, so that each size's memory is its own: the
-scene's frames replayed as a live stream through the localizer with the defaults (the index and costs looked up from
-the sizes where ``auto`` turns them on), heading not declared.
+scene's front frames replayed as a live stream through the localizer with the defaults (``--costs`` aside: the index
+and the looked-up costs from the sizes where ``auto`` turns them on), heading not declared.
 
 Columns: the build (writing and indexing; the real frames' description is done once, before), the map's bytes on disk
 per frame, the time to open the map and make the localizer (calibration given: the map's own takes minutes at a
 million frames and is measured apart by ``study_calibration.py``), the process's resident memory after opening and its
 peak while matching, and everything after the network per frame (median, p90).
 
-    python benchmarks/bench_bigmap.py [--sizes 10000 100000] [--steps 40] [--scene scene-0523] [--quick]
-                                      [--out benchmarks/results/bigmap.json]
+    python benchmarks/bench_bigmap.py [--sizes 10000 100000] [--steps 40] [--scene scene-0523]
+                                      [--costs auto|every|looked-up] [--quick] [--out benchmarks/results/bigmap.json]
 """
 
 from __future__ import annotations
@@ -95,9 +95,11 @@ def write_map(real: dict, n: int, out: Path, spool: Path) -> float:
     return time.perf_counter() - start
 
 
-def measure(map_path: Path, scene: str, steps: int) -> dict:
-    """Open the map, make a localizer and replay the scene's frames through it (in this process)."""
+def measure(map_path: Path, scene: str, steps: int, costs: str) -> dict:
+    """Open the map, make a localizer (``costs``: the sequence costs, ``[sequence] costs``) and replay the scene's
+    frames through it (in this process)."""
     from lostx.core import Config, Localizer, ReferenceMap, load_backbone
+    from lostx.core.config import SequenceConfig
     from lostx.core.decide.calibration import Calibration
     from lostx.core.paths import data_dir
     from lostx.replay.dataset import open_traverse
@@ -107,7 +109,8 @@ def measure(map_path: Path, scene: str, steps: int) -> dict:
     before = resident()[0]
     t0 = time.perf_counter()
     refmap = ReferenceMap.open(map_path)
-    localizer = Localizer(refmap, Config(), backbone, calibration=Calibration(np.zeros(999), np.zeros(999), {}))
+    config = Config(sequence=SequenceConfig(costs=costs))  # type: ignore[arg-type]
+    localizer = Localizer(refmap, config, backbone, calibration=Calibration(np.zeros(999), np.zeros(999), {}))
     opened = time.perf_counter() - t0
     after_open = resident()[0]
     after_network, stages = [], []
@@ -119,7 +122,8 @@ def measure(map_path: Path, scene: str, steps: int) -> dict:
     now, peak = resident()
     return {"open_s": opened, "rss_before_open_gb": before, "rss_after_open_gb": after_open, "rss_now_gb": now,
             "rss_peak_gb": peak, "after_network": summary(after_network[len(after_network) // 2:]),
-            "stages_median_ms": {k: float(np.median([t.get(k, 0.0) for t in timed])) for k in timed[0]}, "index": refmap.index is not None,
+            "stages_median_ms": {k: float(np.median([t.get(k, 0.0) for t in timed])) for k in timed[0]},
+            "index": refmap.index is not None,
             "map_bytes": refmap.nbytes, "map_frames": refmap.n_frames}
 
 
@@ -138,7 +142,7 @@ def child(args: argparse.Namespace) -> None:
     if not (out / "manifest.json").is_file():
         with tempfile.TemporaryDirectory(dir=folder) as spool:
             built = write_map(real, args.child, out, Path(spool))
-    result = measure(out, args.scene, args.steps)
+    result = measure(out, args.scene, args.steps, args.costs)
     result["build_s"] = built
     print(json.dumps(result))
 
@@ -149,6 +153,8 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=40, help="frames matched per size (at most the scene's; the "
                         "second half timed, after the window filled)")
     parser.add_argument("--scene", default="scene-0523")
+    parser.add_argument("--costs", choices=("auto", "every", "looked-up"), default="auto",
+                        help="the sequence costs (default: as lostx chooses by the map's size)")
     parser.add_argument("--work", help="a folder for the maps (default: a temporary one, removed at the end)")
     parser.add_argument("--child", type=int, help=argparse.SUPPRESS)
     args = parse(parser, "bigmap", quick="a 2,000-frame map, 20 frames matched")
@@ -164,18 +170,20 @@ def main() -> None:
         results = []
         for n in args.sizes:
             command = [sys.executable, __file__, "--child", str(n), "--steps", str(args.steps), "--scene", args.scene,
-                       "--work", str(work), "--out", str(args.out)]
+                       "--costs", args.costs, "--work", str(work), "--out", str(args.out)]
             done = subprocess.run(command, capture_output=True, text=True)
             if done.returncode != 0:
                 raise SystemExit(f"the {n}-frame map failed:\n{done.stderr[-4000:]}")
             results.append(json.loads(done.stdout.strip().splitlines()[-1]))
-    rows = [[r["map_frames"], "" if r["build_s"] is None else f"{r['build_s']:.0f}", r["map_bytes"] / r["map_frames"] / 1e3,
+    rows = [[r["map_frames"], "" if r["build_s"] is None else f"{r['build_s']:.0f}",
+             r["map_bytes"] / r["map_frames"] / 1e3,
              r["open_s"], r["rss_after_open_gb"], r["rss_peak_gb"], r["after_network"]["median_ms"],
              r["after_network"]["p90_ms"], slowest(r["stages_median_ms"])] for r in results]
     print_table("A city-size map: disk, opening, memory and time per frame after the network",
                 ["map frames", "build s", "kB per frame on disk", "open s", "RSS after open GB", "RSS peak GB",
                  "after network ms", "p90 ms", "slowest stages (median ms)"], rows)
-    write_json(args.out, {"benchmark": "bigmap", "scene": args.scene, "noise": NOISE, "steps": args.steps,
+    write_json(args.out, {"benchmark": "bigmap", "scene": args.scene, "costs": args.costs, "noise": NOISE,
+                          "steps": args.steps,
                           "sizes": results})
 
 
