@@ -42,10 +42,16 @@ SPACING = 2.0
 """Metres between map frames along the synthetic route (a city mapped at a frame every 2 m)."""
 
 
+NOT_AFTER = ("network", "total")
+"""The latencies that are not stages after the network."""
+
+
 def resident() -> tuple[float, float]:
-    """This process's resident memory now and at its peak, GB (Linux: /proc/self/status)."""
-    fields = dict(line.split(":", 1) for line in Path("/proc/self/status").read_text().splitlines() if ":" in line)
-    return (int(fields["VmRSS"].split()[0]) / 1e6, int(fields["VmHWM"].split()[0]) / 1e6)
+    """This process's resident memory now and at its peak, GB (Linux)."""
+    from lostx.core.budget import proc_status
+
+    status = proc_status("/proc/self/status")
+    return status["VmRSS"] / 1e9, status["VmHWM"] / 1e9
 
 
 def real_frames(scene: str, folder: Path) -> Path:
@@ -113,15 +119,12 @@ def measure(map_path: Path, scene: str, steps: int, costs: str) -> dict:
     localizer = Localizer(refmap, config, backbone, calibration=Calibration(np.zeros(999), np.zeros(999), {}))
     opened = time.perf_counter() - t0
     after_open = resident()[0]
-    after_network, stages = [], []
-    for frame in traverse[:steps]:
-        latency = localizer.step(frame).latency_ms
-        after_network.append(sum(v for k, v in latency.items() if k not in ("network", "total")))
-        stages.append(latency)
-    timed = stages[len(stages) // 2:]
+    stages = [localizer.step(frame).latency_ms for frame in traverse[:steps]]
+    timed = stages[len(stages) // 2:]  # after the window filled
     now, peak = resident()
     return {"open_s": opened, "rss_before_open_gb": before, "rss_after_open_gb": after_open, "rss_now_gb": now,
-            "rss_peak_gb": peak, "after_network": summary(after_network[len(after_network) // 2:]),
+            "rss_peak_gb": peak,
+            "after_network": summary([sum(v for k, v in t.items() if k not in NOT_AFTER) for t in timed]),
             "stages_median_ms": {k: float(np.median([t.get(k, 0.0) for t in timed])) for k in timed[0]},
             "index": refmap.index is not None,
             "map_bytes": refmap.nbytes, "map_frames": refmap.n_frames}
@@ -129,7 +132,7 @@ def measure(map_path: Path, scene: str, steps: int, costs: str) -> dict:
 
 def slowest(stages: dict[str, float], count: int = 3) -> str:
     """The ``count`` stages after the network that took longest, with their medians."""
-    after = {k: v for k, v in stages.items() if k not in ("network", "total")}
+    after = {k: v for k, v in stages.items() if k not in NOT_AFTER}
     return ", ".join(f"{k} {v:.3g}" for k, v in sorted(after.items(), key=lambda kv: -kv[1])[:count])
 
 
@@ -183,8 +186,7 @@ def main() -> None:
                 ["map frames", "build s", "kB per frame on disk", "open s", "RSS after open GB", "RSS peak GB",
                  "after network ms", "p90 ms", "slowest stages (median ms)"], rows)
     write_json(args.out, {"benchmark": "bigmap", "scene": args.scene, "costs": args.costs, "noise": NOISE,
-                          "steps": args.steps,
-                          "sizes": results})
+                          "steps": args.steps, "sizes": results})
 
 
 if __name__ == "__main__":

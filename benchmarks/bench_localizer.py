@@ -319,8 +319,8 @@ def report(args: argparse.Namespace, real: ReferenceMap) -> None:
           f"(median, real Nordland map and queries; independent of the map's size)")
     print_table("Everything after the network, per frame (median ms; sequence p90 too)",
                 ["map frames", "search (index)", "search (exact)", "exact / index", "index Recall@10", "costs",
-                 "costs (one direction)", "rows read (both / one direction)", "costs (exact search)", "sequence", "sequence p90", "tracker",
-                 "after network (index)", "after network (index, one direction)", "after network (exact)",
+                 "costs (one direction)", "rows read (both / one direction)", "costs (exact search)", "sequence",
+                 "sequence p90", "tracker", "after network (index)", "after network (index, one direction)", "after network (exact)",
                  "kB per map frame"], rows)
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6
     write_json(args.out, {"benchmark": "localizer", "real_map": str(real.path), "noise": NOISE,

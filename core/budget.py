@@ -94,17 +94,17 @@ def needed_bytes(config: Config, n_frames: int, streams: int = 1) -> int:
 def available_bytes() -> int:
     """Memory the machine can give now without swapping: ``MemAvailable`` (Linux), else the physical memory; within
     what is left of the process's address-space limit where one is set (``ulimit -v``)."""
-    info = _proc_status("/proc/meminfo")
+    info = proc_status("/proc/meminfo")
     available = info.get("MemAvailable")
     if available is None:
         available = os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
     limit = resource.getrlimit(resource.RLIMIT_AS)[0]
     if limit != resource.RLIM_INFINITY:
-        available = min(available, max(0, limit - _proc_status("/proc/self/status").get("VmSize", 0)))
+        available = min(available, max(0, limit - proc_status("/proc/self/status").get("VmSize", 0)))
     return available
 
 
-def _proc_status(path: str) -> dict[str, int]:
+def proc_status(path: str) -> dict[str, int]:
     """The ``Name: value kB`` lines of a /proc file, in bytes (empty where there is none)."""
     out: dict[str, int] = {}
     try:

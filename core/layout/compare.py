@@ -99,12 +99,18 @@ class StoredGrids:
         self.n = len(values)
 
     def rows(self, indices: np.ndarray) -> GridStack:
-        """The grids ``indices`` as a stack of their own, as :meth:`GridStack.rows` of the whole map's stack gives
-        them (the same levels, masks and totals)."""
+        """The grids ``indices`` as a stack of their own, as :meth:`GridStack.rows` of :meth:`whole` gives them (the
+        same levels, masks and totals)."""
         indices = np.asarray(indices, dtype=np.int64)
-        values, bits = stored_half(np.asarray(self.values[indices]), np.asarray(self.bits[indices]), self.shape,
-                                   self.other_end)
-        return GridStack(*unpack_levels(values, bits, self.shape))
+        return self._stack(np.asarray(self.values[indices]), np.asarray(self.bits[indices]))
+
+    def whole(self) -> GridStack:
+        """Every grid, read into memory as one stack."""
+        return self._stack(self.values, self.bits)
+
+    def _stack(self, values: np.ndarray, bits: np.ndarray) -> GridStack:
+        # The stored levels as they are: their sums over cells are exact.
+        return GridStack(*unpack_levels(*stored_half(values, bits, self.shape, self.other_end), self.shape))
 
 
 def _stack_of_grids(grids: np.ndarray, scale: np.ndarray) -> GridStack:

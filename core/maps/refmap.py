@@ -53,7 +53,7 @@ from ..errors import MapError
 from ..frame import Heading
 from ..geometry import CameraGeometry
 from ..layout.compare import GridStack, StoredGrids
-from ..layout.grid import LayoutGrid, grid_shape, holds_both, stored_half, unpack, unpack_levels
+from ..layout.grid import LayoutGrid, grid_shape, holds_both, stored_half, unpack
 from ..motion.odometer import forwards
 from .format import BACKBONE_IDENTITY, MAP_FORMAT, READABLE_VERSIONS, MapKind, backbone_dict, backbone_identity
 from .index import ApproximateIndex, file_sha256
@@ -151,13 +151,17 @@ class ReferenceMap:
 
     def appearance_rows(self, indices: np.ndarray) -> np.ndarray:
         """The GeM descriptors of map frames ``indices`` (float32), from memory or from the memory map."""
-        source = self._appearance if self._appearance is not None else self._arrays["appearance"]
-        return np.asarray(source[np.asarray(indices, dtype=np.int64)], dtype=np.float32)
+        return self._rows(self._appearance, "appearance", indices, np.float32)
 
     def descriptor_rows(self, indices: np.ndarray) -> np.ndarray:
         """The descriptors of map frames ``indices``, read from memory or from the memory map."""
-        source = self._descriptors if self._descriptors is not None else self._arrays["descriptors"]
-        return np.asarray(source[np.asarray(indices, dtype=np.int64)], dtype=self._descriptor_dtype)
+        return self._rows(self._descriptors, "descriptors", indices, self._descriptor_dtype)
+
+    def _rows(self, in_memory: np.ndarray | None, name: str, indices: np.ndarray, dtype: type) -> np.ndarray:
+        """Rows ``indices`` of array ``name``: from its copy in memory where it was read whole, else from the memory
+        map."""
+        source = in_memory if in_memory is not None else self._arrays[name]
+        return np.asarray(source[np.asarray(indices, dtype=np.int64)], dtype=dtype)
 
     @property
     def _descriptor_dtype(self) -> type:
@@ -226,15 +230,10 @@ class ReferenceMap:
     def layout_stack(self, heading: Heading = "same") -> GridStack:
         """Every map frame's layout grid as :meth:`layout_grid` gives it, ready to compare (read once, on first
         use; one stack for both headings on a map that stores no other ends)."""
-        other_end = heading == "opposite" and self.stores_other_ends
-        if other_end not in self._layout_stacks:
-            settings = self.layout_settings
-            assert settings is not None
-            shape = grid_shape(settings)
-            # The stored levels as they are: their sums over cells are exact.
-            self._layout_stacks[other_end] = GridStack(*unpack_levels(
-                *stored_half(self._arrays["layout_values"], self._arrays["layout_mask"], shape, other_end), shape))
-        return self._layout_stacks[other_end]
+        stored = self.stored_grids(heading)
+        if stored.other_end not in self._layout_stacks:
+            self._layout_stacks[stored.other_end] = stored.whole()
+        return self._layout_stacks[stored.other_end]
 
     def stored_grids(self, heading: Heading = "same") -> StoredGrids:
         """The map frames' layout grids as :meth:`layout_stack` gives them, left in the memory map and read a few at a

@@ -116,9 +116,7 @@ class LayoutComparison:
         if self._every is not None or self.maps.n <= EVERY_FRAME_MAX:
             return self.every()[row, refs]
         known, scores = self._known[row]
-        at = np.clip(np.searchsorted(known, refs), 0, max(len(known) - 1, 0))
-        hit = known[at] == refs if len(known) else np.zeros(len(refs), dtype=bool)
-        missing = np.unique(refs[~hit])
+        missing = np.setdiff1d(refs, known)
         if len(missing):
             known = np.concatenate([known, missing])
             scores = np.concatenate([scores, self._compare((row,), missing)[0]])
