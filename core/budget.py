@@ -33,8 +33,8 @@ WINDOW_COST = 4
 """Bytes of one map frame's cost at one window frame (float32), where every map frame's cost is computed."""
 REFERENCE_STATISTICS = 3 * 8
 """Bytes per map frame of its running cost statistics (count, sum, sum of squares)."""
-TRAJECTORY = 5 * 8
-"""Bytes per trajectory besides its costs: anchor frame, progress, position, route position, speed."""
+TRAJECTORY = 6 * 8
+"""Bytes per trajectory besides its costs: anchor frame, progress, position, route position, speed, latest support."""
 FILTERS = 7
 """Sequence filters per stream: each heading's over its combined answers, and each cue's own (LoST-X's and the
 layout's under each heading, appearance's), which its weight is earned against (lostx.core.route.agreement)."""
@@ -48,24 +48,29 @@ THREAD_STACK = 8 << 20
 """Bytes an inference thread reserves for its stack (Linux's default; little of it is used)."""
 
 
-def trajectories(config: Config) -> int:
+def trajectories(config: Config, n_frames: int) -> int:
     """The most live trajectories one sequence filter holds: every frame of the window spawning one at each of its
-    anchors (its verified candidates and its lowest costs) at each speed searched."""
+    anchors (its verified candidates and its lowest costs) at each speed searched; where costs are looked up, the
+    ``hypotheses`` it keeps and one frame's new ones before it keeps them."""
     seq = config.sequence
     speeds = max(_signed(seq.speeds) + 1, _signed(seq.acquire_speeds), _signed(seq.distance_ratios))
+    if looks_up_costs(seq, n_frames):
+        return seq.hypotheses + (config.verify.top_k + seq.nearest) * speeds
     return seq.length * (config.verify.top_k + seq.anchors) * speeds
 
 
 def stream_bytes(config: Config, n_frames: int) -> int:
     """Peak memory of one stream's localizer beyond the shared map and network: its sequence filters, each with at
-    most :func:`trajectories` trajectories of one cost per window frame (with the working copies of one update), and
-    where every map frame's cost is computed, the window's costs of every map frame, each map frame's running cost
-    statistics and one frame's map-wide scratch. The filter counts whether or not it answers: measuring the map's
+    most :func:`trajectories` trajectories of one cost per window frame (with the working copies of one update), each
+    map frame's running cost statistics, and where every map frame's cost is computed, the window's costs of every map
+    frame and one frame's map-wide scratch. The filter counts whether or not it answers: measuring the map's
     calibration runs it."""
-    length, paths = config.sequence.length, trajectories(config)
+    length, paths = config.sequence.length, trajectories(config, n_frames)
     per_filter = paths * (length * COST + TRAJECTORY)
     total = FILTERS * per_filter + WORKING_COPIES * paths * length * COST
-    if not looks_up_costs(config.sequence, n_frames):
+    if looks_up_costs(config.sequence, n_frames):
+        total += FILTERS * n_frames * REFERENCE_STATISTICS
+    else:
         total += FILTERS * n_frames * (length * WINDOW_COST + REFERENCE_STATISTICS) + n_frames * FRAME_SCRATCH
     return total
 
@@ -76,7 +81,7 @@ def state_bytes(config: Config, n_frames: int) -> int:
     up on a very large map)."""
     if looks_up_costs(config.sequence, n_frames):
         return 0
-    length, paths = config.sequence.length, trajectories(config)
+    length, paths = config.sequence.length, trajectories(config, n_frames)
     per_filter = paths * (length * PACKED_COST + TRAJECTORY) + n_frames * (length * WINDOW_COST + REFERENCE_STATISTICS)
     return FILTERS * per_filter
 

@@ -172,11 +172,15 @@ class SequenceConfig:
     """Map size from which ``auto`` looks costs up (below it computing them all is as fast)."""
     anchors: int = 20
     """Trajectories are anchored at each frame's verified candidates and its this many lowest-cost references
-    (where costs are looked up: among those where the live trajectories pass and around the ``nearest``
-    map frames of its search)."""
-    nearest: int = 400
+    over the map (where costs are looked up: its ``nearest`` lowest among those where the live trajectories pass and
+    around the ``nearest`` map frames of its search)."""
+    nearest: int = 40
     """Where costs are looked up: map frames nearest to a frame's descriptor around which (each with its
-    ``contrast_window`` neighbourhood) its anchors are looked for."""
+    ``contrast_window`` neighbourhood) its anchors are looked for, and how many anchors it gives."""
+    hypotheses: int = 500
+    """Where costs are looked up: at most this many live trajectories, each followed while the frames' anchors keep
+    falling on it (a new anchor on a live trajectory supports it instead of starting a copy), so that a step's work
+    is bounded by the anchors, the window and the speeds, not by the map (lostx.core.route.sequence)."""
     radius: int = 0
     """A trajectory takes a frame's lowest cost within this many reference frames of its line."""
     contrast_window: int = 10
@@ -519,7 +523,8 @@ LIMITS: dict[str, dict[str, Bounds]] = {
     "camera": {"hfov_deg": Bounds(0, 180, above=True), "view_hfov_deg": Bounds(0, 180, above=True),
                "ignore_top": Bounds(0, 0.9), "ignore_bottom": Bounds(0, 0.9)},
     "sequence": {
-        "length": Bounds(1, 100_000), "speeds": _AT_LEAST_0, "acquire_speeds": _ABOVE_0, "anchors": _AT_LEAST_0, "nearest": _AT_LEAST_0,
+        "length": Bounds(1, 100_000), "speeds": _AT_LEAST_0, "acquire_speeds": _ABOVE_0, "anchors": _AT_LEAST_0,
+        "hypotheses": _AT_LEAST_1, "nearest": _AT_LEAST_0,
         "costs_min_frames": _AT_LEAST_1,
         "radius": _AT_LEAST_0, "contrast_window": Bounds(2), "contrast_distance": _ABOVE_0,
         "reference_prior": _AT_LEAST_0,

@@ -128,13 +128,15 @@ class Localizer:
 
     def _sequence_filter(self, route: np.ndarray | None) -> SequenceFilter:
         seq = self.config.sequence
-        costs = LookedUpCosts if looks_up_costs(seq, self.map.n_frames) else EveryFrameCosts
+        looked_up = looks_up_costs(seq, self.map.n_frames)
+        costs = LookedUpCosts if looked_up else EveryFrameCosts
         speeds = signed(seq.distance_ratios, stopped=False) if route is not None else signed(seq.speeds, stopped=True)
         window = seq.contrast_window if route is None else contrast_references(route, seq.contrast_distance)
         return SequenceFilter(seq.length, tuple(speeds), seq.radius, seq.penalty,
                               costs(self.map.n_frames, seq.length, window, seq.reference_prior),
-                              seq.anchors, window // 2, route, seq.distance_window,
-                              seq.distance_window / seq.length, seq.switch_cost)
+                              seq.nearest if looked_up else seq.anchors, window // 2, route, seq.distance_window,
+                              seq.distance_window / seq.length, seq.switch_cost,
+                              seq.hypotheses if looked_up else 0)
 
     def _route(self) -> np.ndarray | None:
         return self.map.progress if self.following_distance else None

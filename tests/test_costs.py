@@ -189,3 +189,63 @@ def test_a_step_looks_up_as_many_scores_whatever_the_map_size():
         assert abs(result.position - true) <= 1
         computed[n_refs] = costs.computed / 40
     assert computed[1_000_000] == computed[100_000] < 2_000
+
+
+def _route_scores(true: int, lookalikes: np.ndarray, t: int):
+    """A frame's scores of any map frame, computed only when asked: noise, the true place's valley (3 frames wide)
+    and a shallower dip at each look-alike place."""
+    def scores(refs):
+        noise = np.modf(np.sin(refs * 12.9898 + t * 78.233) * 43758.5453)[0]
+        valley = np.clip(1.0 - np.abs(refs - true) / 2.0, 0.0, None)
+        near = np.abs(refs[:, None] - (lookalikes + t)[None, :]).min(axis=1) == 0
+        return 1.0 + 0.3 * noise - 1.0 * valley - 0.3 * near
+    return scores
+
+
+def _bounded_traverse(n_refs: int, steps: int, first_true_candidate: int = 0):
+    """The bounded filter as a city map runs it, over a route through a map of ``n_refs`` frames: each frame's 30
+    nearest map frames (seeds) are its true place's neighbourhood and look-alikes around the map, its 10 candidates
+    the best of them (the true place among them from frame ``first_true_candidate`` on). Returns the filter, its
+    costs and the rows read per frame."""
+    from lostx.core.route.sequence import SequenceFilter, signed
+
+    length = 20
+    costs = LookedUpCosts(n_refs, length, 10, 100.0)
+    seq = SequenceFilter(length, tuple(signed((0.8, 0.9, 1.0, 1.1, 1.2), stopped=False)), 0, 0.0, costs, anchors=20,
+                         neighbourhood=5, bound=500)
+    # Look-alike places anywhere on the map, apart from each other and the route (on a small map places close
+    # together share the rows read, which is not what this measures).
+    slots = np.arange((n_refs - 200) // 300) * 300 + 100
+    slots = slots[np.abs(slots - 5000) > 500]
+    lookalikes = np.sort(np.random.default_rng(3).choice(slots, 25, replace=False))
+    rows, results = [], []
+    for t in range(steps):
+        true = 5000 + t
+        scores = MapScores(_route_scores(true, lookalikes, t), n_refs)
+        seeds = np.concatenate([true + np.arange(-2, 3), lookalikes + t])
+        order = seeds[np.argsort(scores.at(seeds), kind="stable")]
+        candidates = order[:10] if t >= first_true_candidate else order[~np.isin(order, true + np.arange(-3, 4))][:10]
+        before = costs.computed
+        results.append(seq.update(scores, candidates, seeds))
+        rows.append(costs.computed - before)
+    return seq, rows, results
+
+
+def test_the_bounded_filter_reads_as_many_rows_on_a_10000_frame_map_as_on_a_million():
+    """The design's filter: a step's reads are bounded by the candidates, the window and the speeds, not the map."""
+    read = {}
+    for n_refs in (10_000, 1_000_000):
+        seq, rows, results = _bounded_traverse(n_refs, 80)
+        assert abs(results[-1].position - (5000 + 79)) <= 1
+        assert len(seq.scores()) <= 500
+        read[n_refs] = float(np.median(rows[20:]))  # once the window is full
+    assert read[1_000_000] == pytest.approx(read[10_000], rel=0.10)
+    assert read[1_000_000] < 3_000
+
+
+def test_the_bounded_filter_finds_a_place_missing_from_the_first_frames_candidates():
+    """The true place is not among the first 10 frames' candidates (the index missed it); its lowest costs around the
+    seeds anchor it, and it is the answer well within the window."""
+    _, _, results = _bounded_traverse(1_000_000, 40, first_true_candidate=10)
+    right = [abs(r.position - (5000 + t)) <= 1 for t, r in enumerate(results)]
+    assert right.index(True) < 20 and all(right[20:])

@@ -256,3 +256,54 @@ def test_scores_and_positions_kept_between_changes_are_those_computed_afresh(rng
         assert np.array_equal(live.scores(), fresh.scores(), equal_nan=True)
         assert live.best_by_sign() == fresh.best_by_sign()
         assert np.array_equal(live.window(5)[0], fresh.window(5)[0], equal_nan=True)
+
+
+def _lines(state: dict) -> np.ndarray:
+    """(trajectories, window frames) every live trajectory's reference position at each window frame, from a state."""
+    times = np.asarray(state["times"], dtype=np.float64)
+    return state["anchor_r"][:, None] + state["speed"][:, None] * (times - state["anchor_t"][:, None])
+
+
+@pytest.mark.parametrize("bound", [4, 60])
+def test_the_bounded_filter_online_equals_batch(rng, bound):
+    """Following at most ``bound`` trajectories, each as long as anchors fall on it: what a step keeps of a
+    trajectory's costs, frame after frame and beyond the window of its first anchor, is its line's costs over the
+    window computed afresh; the answer is the lowest mean among them; never more than ``bound`` live."""
+    length, n, penalty = 6, 80, 0.3
+    frames = synthetic_traverse(rng, 40, n)
+    seq = SequenceFilter(length, SPEEDS, 0, penalty, RingCosts(n, length), bound=bound)
+    followed_beyond = 0
+    for t, (anchors, costs, speeds) in enumerate(frames):
+        got = seq.update(costs, anchors, None, speeds)
+        state = seq.state()
+        window = state["times"]
+        lines = np.rint(_lines(state)).astype(np.int64)
+        fresh = np.full(lines.shape, penalty)
+        for column, tt in enumerate(window):
+            if frames[tt][1] is not None:
+                inside = (lines[:, column] >= 0) & (lines[:, column] < n)
+                fresh[inside, column] = frames[tt][1][lines[inside, column]]
+        kept = state["costs"][:, length - len(window):]
+        np.testing.assert_allclose(kept, fresh, rtol=1e-6)
+        assert len(kept) <= bound
+        means = fresh.mean(axis=1)
+        best = int(np.argmin(means))
+        assert got.score == pytest.approx(means[best], rel=1e-6)
+        assert got.position == pytest.approx(_lines(state)[best, -1])
+        followed_beyond += int((state["anchor_t"] < window[0]).sum())
+    assert followed_beyond > 0  # trajectories outlive their first anchor's window where anchors keep falling on them
+    # The true place (map frame 5 + t) is followed.
+    assert abs(got.position - (5 + 39)) <= 1
+
+
+def test_a_bounded_filter_drops_a_trajectory_no_anchor_supported_for_a_window():
+    length, n = 5, 50
+    seq = SequenceFilter(length, (1.0,), 0, 0.0, RingCosts(n, length), bound=100)
+    costs = np.zeros(n, dtype=np.float32)
+    seq.update(costs, np.array([10]))
+    for t in range(1, 12):
+        # Anchors on the line through (0, 10) for three frames, then elsewhere.
+        seq.update(costs, np.array([10 + t if t < 3 else 40]))
+        lines = np.rint(seq.positions())
+        # Supported last at frame 2, the line is dropped once frame 2 leaves the window (frame 2 + length).
+        assert (10 + t in lines) == (t < 2 + length)

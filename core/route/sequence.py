@@ -40,6 +40,14 @@ a new frame adds one cost to every live trajectory and spawns anchors x
 speeds new ones, whose costs over the window are looked up once. A step
 costs O(L x anchors x speeds) look-ups for window length L, independent of the
 number of reference frames, and reads no future frame.
+
+Kept whole, the trajectories are those anchored in the window: anchors x speeds x L of them. Bounded (the design's
+filter on a city map, where costs are looked up), at most ``bound`` are live: a new anchor that falls on a live
+trajectory of its speed (within half a reference frame at the newest frame) *supports* it instead of spawning a
+copy, a trajectory lives until a window has passed without support (however old its first anchor), and beyond
+``bound`` the best-scoring ones are kept. Only anchors that fall on no live trajectory look their window up, so a
+step reads one cost per live trajectory and the pasts of the new ones: bounded by ``bound``, the anchors, the speeds
+and the window, not by the map.
 """
 
 from __future__ import annotations
@@ -111,7 +119,7 @@ class SequenceFilter:
 
     def __init__(self, length: int, speeds: tuple[float, ...], radius: int, penalty: float, costs: WindowCosts,
                  anchors: int = 0, neighbourhood: int = 0, route: np.ndarray | None = None,
-                 reach: float | None = None, spacing: float = 0.0, switch: float = np.inf) -> None:
+                 reach: float | None = None, spacing: float = 0.0, switch: float = np.inf, bound: int = 0) -> None:
         """``costs``: where the window's costs come from; ``anchors``: how many of a frame's lowest costs
         anchor trajectories besides its candidates; ``neighbourhood``: how far around each seed (a nearest
         map frame of the frame's search) they are looked for, where not every cost is known. ``route``: the
@@ -120,7 +128,9 @@ class SequenceFilter:
         window then holds the frames of the last this many metres (at most ``length`` of them), ``spacing``
         metres apart at least but for the newest (a frame nearer the one before the newest takes the newest's
         place: at a high frame rate, or stopped, the window keeps its reach). ``switch``: J, what a trajectory
-        pays for entering the map within the window (:func:`window_scores`)."""
+        pays for entering the map within the window (:func:`window_scores`). ``bound``: at most this many live
+        trajectories, followed as long as anchors fall on them (0: every trajectory anchored in the window, each
+        new one's past looked up; see :meth:`update`)."""
         if length < 1 or not speeds:
             raise ValueError("the sequence window needs at least one frame and one speed")
         self.length = length
@@ -134,6 +144,7 @@ class SequenceFilter:
         self.reach = reach
         self.spacing = float(spacing)
         self.switch = float(switch)
+        self.bound = int(bound)
         self.reset()
 
     def reset(self) -> None:
@@ -148,6 +159,7 @@ class SequenceFilter:
         self._anchor_r = np.zeros(0)
         self._anchor_p = np.zeros(0)  # the anchors' route positions P(r_a), fixed as r_a is
         self._speed = np.zeros(0)
+        self._support = np.zeros(0, dtype=np.int64)  # the newest frame anchoring each trajectory (or falling on it)
         self._costs = np.zeros((0, self.length))
         self._best_result: SequenceResult | None = None
         self._changed()
@@ -215,8 +227,8 @@ class SequenceFilter:
             if len(self._times) > self.length:
                 self._times.popleft()
                 self._progress.popleft()
-            # Slide the window: drop trajectories anchored before it, shift the cost columns left.
-            self._keep(self._anchor_t >= self._times[0])
+            # Slide the window: drop trajectories no frame in it anchored, shift the cost columns left.
+            self._keep(self._support >= self._times[0])
             self._costs = np.concatenate([self._costs[:, 1:], np.full((len(self._costs), 1), np.nan)], axis=1)
         ends = self._positions()
         if len(self._anchor_t):
@@ -228,6 +240,9 @@ class SequenceFilter:
         spawn = self.speeds if speeds is None or len(speeds) == 0 else np.asarray(speeds, dtype=np.float64)
         new_r = np.repeat(anchors, len(spawn))
         new_v = np.tile(spawn, len(anchors))
+        if self.bound:
+            fresh = self._supports(t, new_r, new_v, ends)
+            new_r, new_v = new_r[fresh], new_v[fresh]
         new_costs = np.full((len(new_r), self.length), np.nan)
         new_p = self._on_route(new_r)
         new_ends = new_r
@@ -242,9 +257,12 @@ class SequenceFilter:
         self._anchor_r = np.concatenate([self._anchor_r, new_r])
         self._anchor_p = np.concatenate([self._anchor_p, new_p])
         self._speed = np.concatenate([self._speed, new_v])
+        self._support = np.concatenate([self._support, np.full(len(new_r), t)])
         self._costs = np.concatenate([self._costs, new_costs])
         self._changed()
         self._ends = _read_only(np.concatenate([ends, new_ends]))
+        if self.bound and len(self._speed) > self.bound:
+            self._prune()
         self._best_result = self._best()
         return self._best_result
 
@@ -257,7 +275,30 @@ class SequenceFilter:
         """Keep only the trajectories ``live``."""
         self._anchor_t, self._anchor_r, self._speed = self._anchor_t[live], self._anchor_r[live], self._speed[live]
         self._anchor_q, self._anchor_p, self._costs = self._anchor_q[live], self._anchor_p[live], self._costs[live]
+        self._support = self._support[live]
         self._changed()
+
+    def _supports(self, t: int, refs: np.ndarray, speeds: np.ndarray, ends: np.ndarray) -> np.ndarray:
+        """Which of the new anchors' trajectories (``refs``, ``speeds``) lie on no live trajectory of the same speed
+        (one passing within half a reference frame of the anchor at frame t, live ones at ``ends``); the live ones
+        they fall on are supported by frame t and followed for another window."""
+        _, kind = np.unique(np.concatenate([self._speed, speeds]), return_inverse=True)
+        kinds = int(kind.max(initial=0)) + 1
+        on_map = np.isfinite(ends)
+        live = np.rint(ends[on_map]).astype(np.int64) * kinds + kind[: len(ends)][on_map]
+        new = np.rint(refs).astype(np.int64) * kinds + kind[len(ends) :]
+        supported = np.flatnonzero(on_map)[np.isin(live, new)]
+        self._support[supported] = t
+        return ~np.isin(new, live)
+
+    def _prune(self) -> None:
+        """Keep the ``bound`` best-scoring live trajectories (ties to the most recently supported)."""
+        order = np.lexsort((-self._support, self.scores()))
+        live = np.zeros(len(order), dtype=bool)
+        live[order[: self.bound]] = True
+        ends = self.positions()
+        self._keep(live)
+        self._ends = _read_only(ends[live])
 
     def _new_anchors(self, t: int, candidates: np.ndarray, seeds: np.ndarray | None, ends: np.ndarray) -> np.ndarray:
         """The candidates, and the ``anchors`` lowest costs of frame t: over the map where every cost is
@@ -436,7 +477,7 @@ class SequenceFilter:
         return {
             "t": self._t, "times": list(self._times), "progress": list(self._progress),
             "anchor_t": self._anchor_t, "anchor_q": self._anchor_q, "anchor_r": self._anchor_r,
-            "speed": self._speed, "costs": self._costs, "window_costs": self.costs.state(),
+            "speed": self._speed, "support": self._support, "costs": self._costs, "window_costs": self.costs.state(),
             "best": None if best is None else [best.position, best.speed, best.score, best.frames, best.trajectory,
                                                best.mean],
         }
@@ -452,6 +493,7 @@ class SequenceFilter:
         self._anchor_t, self._anchor_q = state["anchor_t"].astype(np.int64), state["anchor_q"].astype(np.float64)
         self._anchor_r, self._speed = state["anchor_r"].astype(np.float64), state["speed"].astype(np.float64)
         self._anchor_p = self._on_route(self._anchor_r)
+        self._support = np.asarray(state.get("support", self._anchor_t), dtype=np.int64)
         self._costs = state["costs"].astype(np.float64)
         self._changed()
         best = state["best"]
