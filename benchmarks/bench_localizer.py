@@ -28,7 +28,8 @@ Stages, per frame:
   tracker follows the route).
 
 "after the network" is descriptor + verify + the step's search, costs, sequence and tracker; memory per map
-frame is the map's descriptors (float16), the index and the per-frame evidence of the real map.
+frame is the map's descriptors (float16), the index and the per-frame evidence of the real map; the saved state is
+one stream's after the steps, packed as the service writes it beside its journal (none where costs are looked up).
 
     python benchmarks/bench_localizer.py [--sizes 1000 10000 100000 1000000] [--steps 200] [--real MAP] [--repeat-places]
                                          [--quick] [--out benchmarks/results/localizer.json]
@@ -58,6 +59,8 @@ from lostx.core.maps.mapwriter import MapFrame, MapWriter
 from lostx.core.match.matcher import FrameMatch, MatchResult, PlaceMatcher
 from lostx.core.paths import data_dir
 from lostx.core.match.search import CandidateSearch, QueryDistances
+from lostx.core.errors import StateError
+from lostx.stream.states import pack
 
 NOISE = 0.5
 """Noise per dimension, relative to a unit descriptor's typical component (1 / sqrt(K))."""
@@ -195,6 +198,11 @@ class SyntheticAnswers:
     def reset(self) -> None:
         self.t = 0
 
+    def state(self) -> dict:
+        """What the matcher adds to a stream's saved state: nothing here (a real matcher's query statistics are a
+        few kB)."""
+        return {}
+
 
 # Any margin counts as sure: the tracker then runs as it does on a recognised route (a map's own
 # calibration is not what is timed here).
@@ -235,6 +243,10 @@ def step_stages(refmap: ReferenceMap, refs: DescriptorMap, steps: int, one_direc
         scores.append(getattr(localizer.sequence.costs, "computed", 0) - before)
     stages["search"] = answers.search_ms
     stages["state"] = [estimate.state == "localized"]  # type: ignore[list-item]
+    try:
+        stages["state_bytes"] = [len(pack(localizer.state()))]
+    except StateError:  # costs looked up: the window's pasts are read through the index, not saved
+        stages["state_bytes"] = []
     # Scores looked up (each a map row read, a descriptor distance) per step, once the window is full.
     stages["scores"] = scores[config.sequence.length:] or scores
     return stages
@@ -289,6 +301,8 @@ def run_size(n: int, real: np.ndarray, steps: int, queries: int, threads: int, r
         "scores_per_frame": float(np.median(both["scores"])),
         "scores_per_frame_one_direction": float(np.median(one["scores"])),
         "localized_at_end": bool(both["state"][0]),
+        "state_bytes_index": both["state_bytes"][0] if both["state_bytes"] else None,
+        "state_bytes_exact": exact["state_bytes"][0] if exact["state_bytes"] else None,
     }
 
 
@@ -314,19 +328,25 @@ def report(args: argparse.Namespace, real: ReferenceMap) -> None:
                      r["costs_after_exact_search"]["median_ms"], r["sequence"]["median_ms"],
                      r["sequence"]["p90_ms"], r["tracker"]["median_ms"], r["after_network_index_ms"],
                      r["after_network_index_one_direction_ms"],
-                     r["after_network_exact_ms"], r["bytes_per_frame"] / 1e3])
+                     r["after_network_exact_ms"], r["bytes_per_frame"] / 1e3, saved(r["state_bytes_index"]),
+                     saved(r["state_bytes_exact"])])
     print(f"\ndescriptor {fixed['descriptor']['median_ms']:.3g} ms, verify {fixed['verify']['median_ms']:.3g} ms "
           f"(median, real Nordland map and queries; independent of the map's size)")
     print_table("Everything after the network, per frame (median ms; sequence p90 too)",
                 ["map frames", "search (index)", "search (exact)", "exact / index", "index Recall@10", "costs",
                  "costs (one direction)", "rows read (both / one direction)", "costs (exact search)", "sequence",
                  "sequence p90", "tracker", "after network (index)", "after network (index, one direction)", "after network (exact)",
-                 "kB per map frame"], rows)
+                 "kB per map frame", "saved state (index)", "saved state (exact)"], rows)
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6
     write_json(args.out, {"benchmark": "localizer", "real_map": str(real.path), "noise": NOISE,
                           "stretch": STRETCH, "repeat_places": args.repeat_places,
                           "fixed_stages": fixed, "evidence_bytes_per_frame": per_frame_evidence,
                           "peak_rss_gb": peak, "sizes": results})
+
+
+def saved(size: int | None) -> str:
+    """A stream's saved state, or why there is none."""
+    return "none (looked up)" if size is None else f"{size / 1e6:.2f} MB"
 
 
 def main() -> None:

@@ -126,17 +126,21 @@ class Localizer:
         """The sequence filter over the frames' combined matches under the heading answered with."""
         return self.filters[self._answering or "same"]
 
-    def _sequence_filter(self, route: np.ndarray | None) -> SequenceFilter:
+    def _sequence_filter(self, route: np.ndarray | None, cue: bool = False) -> SequenceFilter:
+        """A sequence filter over the combined matches, or (``cue``) over one cue's own scores. Where costs are looked
+        up, a cue's filter anchors at its candidates and as many of its lowest costs (``verify.top_k``): it only
+        predicts where the cue's next answer lies (lostx.core.route.agreement), and more anchors changed no answer
+        on either nuScenes scene while each reads a window's past."""
         seq = self.config.sequence
         looked_up = looks_up_costs(seq, self.map.n_frames)
         costs = LookedUpCosts if looked_up else EveryFrameCosts
+        anchors = (self.config.verify.top_k if cue else seq.nearest) if looked_up else seq.anchors
         speeds = signed(seq.distance_ratios, stopped=False) if route is not None else signed(seq.speeds, stopped=True)
         window = seq.contrast_window if route is None else contrast_references(route, seq.contrast_distance)
         return SequenceFilter(seq.length, tuple(speeds), seq.radius, seq.penalty,
                               costs(self.map.n_frames, seq.length, window, seq.reference_prior),
-                              seq.nearest if looked_up else seq.anchors, window // 2, route, seq.distance_window,
-                              seq.distance_window / seq.length, seq.switch_cost,
-                              seq.hypotheses if looked_up else 0)
+                              anchors, window // 2, route, seq.distance_window, seq.distance_window / seq.length,
+                              seq.switch_cost, seq.hypotheses if looked_up else 0)
 
     def _route(self) -> np.ndarray | None:
         return self.map.progress if self.following_distance else None
@@ -153,7 +157,7 @@ class Localizer:
         memory = 2.0 * self.config.sequence.length
         within = self.config.cues.agree_within
         self.cues: dict[str, CueAgreement] = {
-            key: CueAgreement(lambda: self._sequence_filter(route), memory, within) for key in _CUE_KEYS}
+            key: CueAgreement(lambda: self._sequence_filter(route, cue=True), memory, within) for key in _CUE_KEYS}
         """Each cue's own sequence filter and agreement, by cue and heading (appearance sees both alike)."""
 
     def _follow(self, progress: float | None) -> None:
