@@ -113,9 +113,9 @@ def test_online_equals_batch_on_real_nordland_candidates(nordland):
         localizer = Localizer(ReferenceMap.open(f"{tmp}/map"), Config())
         made, recorded = localizer._sequence_filter, []
 
-        def recording_filter(route):
+        def recording_filter(route, cue=False):
             """A filter as the localizer makes it, recording what it is fed."""
-            sequence = made(route)
+            sequence = made(route, cue)
             fed: list = []
             directions: dict[int, int] = {}
             original, prune, anchored = sequence.update, sequence.keep_direction, sequence._new_anchors
