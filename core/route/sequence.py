@@ -129,8 +129,8 @@ class SequenceFilter:
         metres apart at least but for the newest (a frame nearer the one before the newest takes the newest's
         place: at a high frame rate, or stopped, the window keeps its reach). ``switch``: J, what a trajectory
         pays for entering the map within the window (:func:`window_scores`). ``bound``: at most this many live
-        trajectories, followed as long as anchors fall on them (0: every trajectory anchored in the window, each
-        new one's past looked up; see :meth:`update`)."""
+        trajectories, followed as long as anchors fall on them (0: every trajectory anchored in the window; see the
+        module's docstring)."""
         if length < 1 or not speeds:
             raise ValueError("the sequence window needs at least one frame and one speed")
         self.length = length
