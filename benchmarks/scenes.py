@@ -234,6 +234,14 @@ NOISE = 2
 """Queries: a difference of two is noise."""
 
 
+def carries(results: dict[str, dict]) -> bool:
+    """Whether a family's choice carries from one scene to the other: the setting chosen on each scene falls at most
+    :data:`NOISE` queries short of the best on the other. A family that does not is no setting to offer: whichever
+    way a user chose it on their road, another road could lose by it."""
+    return all(max(figure(r, other) for r in results.values()) - figure(results[chosen_on(results, on)], other) <= NOISE
+               for on in SCENES for other in SCENES if other != on)
+
+
 def regret(results: dict[str, dict], name: str) -> int:
     """A setting's worse loss over the scenes: how many queries it falls short of the family's best on each."""
     return max(max(figure(r, s) for r in results.values()) - figure(results[name], s) for s in SCENES)

@@ -25,7 +25,8 @@ import numpy as np
 
 from common import markdown_table, parse, print_table, write_json
 from lostx.core import Config
-from scenes import HEADLINE, MODES, PAIRINGS, RATES, SCENES, Study, chosen_on, figure, rule, variant
+from lostx.core.layout.compare import TURNS
+from scenes import HEADLINE, MODES, NOISE, PAIRINGS, RATES, SCENES, Study, carries, chosen_on, figure, rule, variant
 
 
 def _voters(*kept: str):
@@ -38,6 +39,22 @@ def _voters(*kept: str):
         return update(self, {k: v for k, v in votes.items() if k in kept}, declared)
 
     return lambda: mock.patch.object(HeadingFilter, "update", only)
+
+
+def _straight_in_frames():  # noqa: ANN202
+    """The sequence's trajectories straight in frames although the frames have motion (they follow the distance
+    travelled wherever there is motion)."""
+    from lostx.core.localizer import Localizer
+
+    follow = Localizer._follow
+    return mock.patch.object(Localizer, "_follow", lambda self, progress: follow(self, None))
+
+
+def _turns(angles: tuple[float, ...]):  # noqa: ANN202
+    """The query's grid turned by ``angles`` (degrees) when the most similar map grids are compared again."""
+    from lostx.core.layout import compare
+
+    return lambda: mock.patch.object(compare, "TURNS", angles)
 
 
 def _lane(metres: float):  # noqa: ANN202
@@ -86,14 +103,14 @@ FAMILIES: dict[str, dict[str, tuple[Config, object]]] = {
                (variant(sequence=dict(distance_window=d)), None) for d in (30.0, 45.0, 60.0)},
     "switch": {f"switch cost {j:g}{' (default)' if j == Config().sequence.switch_cost else ''}":
                (variant(sequence=dict(switch_cost=j)), None) for j in (4.0, 8.0, float("inf"))},
-    "follow": {"sequence straight in frames": (variant(sequence=dict(follow="frames")), None),
+    "follow": {"sequence straight in frames": (Config(), _straight_in_frames),
                "sequence following the distance (default)": (Config(), None)},
     "vehicles": {f"vehicles weighted {w:g}{' (default)' if w == Config().layout.vehicle_weight else ''}":
                  (variant(layout=dict(vehicle_weight=w)), None) for w in (1.0, 0.5, 0.0)},
     "shift": {f"sideways shift +-{s:g} m{' (default)' if s == Config().layout.across_shift else ''}":
               (variant(layout=dict(across_shift=s)), LANES) for s in (0.0, 2.0, 4.0)},
-    "turns": {f"turns +-{t:g} degrees{' (default)' if (-t, 0.0, t) == Config().layout.turns else ''}":
-              (variant(layout=dict(turns=(-t, 0.0, t) if t else (0.0,))), None) for t in (0.0, 2.0, 5.0, 8.0)},
+    "turns": {f"turns +-{t:g} degrees{' (default)' if (-t, 0.0, t) == TURNS else ''}":
+              (Config(), _turns((-t, 0.0, t) if t else (0.0,))) for t in (0.0, 2.0, 5.0, 8.0)},
     "smoothing": {f"smoothed {b:g} m{' (default)' if b == Config().layout.blur else ''}":
                   (variant(layout=dict(blur=b)), None) for b in (0.5, 1.0, 2.0)},
     "gathering": {"query 12 m, map +-9 m": (variant(layout=dict(query_travel=12.0, map_travel=9.0)), None),
@@ -105,8 +122,13 @@ FAMILIES: dict[str, dict[str, tuple[Config, object]]] = {
              "a lane to the right (3.5 m)": (Config(), _lane(-3.5)),
              "a lane to the left (3.5 m)": (Config(), _lane(3.5))},
 }
-MEASURED = {"motion", "lane"}
-"""Families that measure a condition, not a setting: nothing is chosen among them."""
+CONDITIONS = {"motion", "lane"}
+"""Families that measure a condition, not a setting."""
+RETIRED = {"follow", "turns"}
+"""Families whose choice did not carry from one scene to the other (:func:`scenes.carries`): no longer settings, the
+code keeps the rule's variant; measured here so that the reason stays visible."""
+MEASURED = CONDITIONS | RETIRED
+"""Families nothing is chosen among."""
 QUICK = {"cues": ["weights earned (default)", "LoST-X alone"]}
 
 
@@ -159,12 +181,16 @@ def main() -> None:
             print_table(title, header, rows)
             markdown.append(markdown_table(title, header, rows))
             choosing = not args.quick and family not in MEASURED
-            choices = {s: chosen_on(results, s) for s in SCENES} if choosing else {}
+            choices = {s: chosen_on(results, s) for s in SCENES} if not args.quick and family not in CONDITIONS else {}
             notes = []
             for on, name in choices.items():
                 other = next(s for s in SCENES if s != on)
                 notes.append(f"chosen on {on}: {name} -> on {other}: "
                              + ", ".join(f"{p} {cell(results[name], other, '2 Hz', p)}" for p in pairings))
+            if choices:
+                notes.append(f"carries (each scene's choice within {NOISE} queries of the other scene's best): "
+                             + ("yes" if carries(results) else "no" + (", no longer a setting" if family in RETIRED
+                                                                       else "")))
             default = rule(results) if choosing else None
             if default is not None:
                 notes.append(f"the rule's choice (least short of the best on its worse scene; the default kept "

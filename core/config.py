@@ -35,7 +35,6 @@ IndexUse = Literal["auto", "on", "off"]
 CostsUse = Literal["auto", "every", "looked-up"]
 LayoutUse = Literal["auto", "on", "off"]
 MotionSource = Literal["auto", "odometry", "visual"]
-Follow = Literal["auto", "distance", "frames"]
 WarmUp = Literal["sequence", "single"]
 Reliability = Literal["best_effort", "reliable"]
 Durability = Literal["volatile", "transient_local"]
@@ -205,10 +204,6 @@ class SequenceConfig:
     exclusion: int = 5
     """Confidence compares the best trajectory with the best one ending more than this many
     reference frames away."""
-    follow: Follow = "auto"
-    """What the trajectories are straight in: ``distance`` travelled (where the map and the frames have
-    motion: turns, stops and changes of speed do not bend them), or ``frames`` (reference frames per query
-    frame); ``auto``: distance where both have motion."""
     distance_window: float = 45.0
     """Following the distance travelled: the window holds the frames of the last this many metres (at most
     ``length`` of them, ``distance_window / length`` metres apart but for the newest), so that its reach does not
@@ -263,10 +258,6 @@ class LayoutConfig:
     across_shift: float = 4.0
     """The grids are compared shifted sideways up to this many metres: a car driving the road the other way drives
     another lane, 3 to 3.7 m over (benchmarks/study_layout.py judges it over the lane and one to either side)."""
-    turns: tuple[float, ...] = (-5.0, 0.0, 5.0)
-    """The most similar map grids are compared again with the query's turned by these angles (degrees) about its
-    centre: views of a curve from its two ends are not exactly 180 degrees apart, and the gathered frames' motion
-    and the camera's mounting are known to a few degrees."""
     vehicle_weight: float = 0.5
     """Weight of the vehicles' channel against the others' 1: parked cars come and go between visits."""
     min_cells: int = 25
@@ -535,7 +526,7 @@ LIMITS: dict[str, dict[str, Bounds]] = {
     "layout": {
         "cell": Bounds(0.1, 10), "length": Bounds(1, 200), "width": Bounds(1, 200), "centre": Bounds(0, 200),
         "max_range": _ABOVE_0, "blur": Bounds(0, 20), "query_travel": _AT_LEAST_0, "map_travel": _AT_LEAST_0,
-        "max_frames": Bounds(1, 200), "across_shift": Bounds(0, 20), "turns": Bounds(-90, 90), "vehicle_weight": Bounds(0, 1),
+        "max_frames": Bounds(1, 200), "across_shift": Bounds(0, 20), "vehicle_weight": Bounds(0, 1),
         "min_cells": _AT_LEAST_1,
     },
     "cues": {"weights": _AT_LEAST_0, "agree_within": _AT_LEAST_0},

@@ -161,14 +161,13 @@ class Localizer:
         """Each cue's own sequence filter and agreement, by cue and heading (appearance sees both alike)."""
 
     def _follow(self, progress: float | None) -> None:
-        """Choose what the sequence filters' trajectories are straight in: at a traverse's first frame, and again
-        at the first frame whose distance travelled is known where the first ones' was not (the filters then start
-        afresh, following the distance)."""
-        follow = self.config.sequence.follow
-        distance = follow != "frames" and progress is not None and self.map.progress is not None
-        if follow == "distance" and self.map.progress is None:
-            raise InputError("[sequence] follow = distance needs motion for the map and the frames (odometry, or a "
-                             "camera geometry for visual odometry)")
+        """Choose what the sequence filters' trajectories are straight in: the distance travelled wherever the map
+        and the frames have motion (turns, stops and changes of speed do not bend them), else the frames. Chosen at a
+        traverse's first frame, and again at the first frame whose distance travelled is known where the first ones'
+        was not (the filters then start afresh, following the distance). Trajectories straight in frames where there
+        is motion won one query of 132 on scene-0523 and cost scene-0916 its heading (1 of 41 frames right against
+        39) and 13 queries: not a choice that carries from one road to another, so it is not offered."""
+        distance = progress is not None and self.map.progress is not None
         if self.following_distance is None or distance:
             self.following_distance = distance
             self._fresh()

@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 from lostx.core import Config, Localizer, ReferenceMap, build_map
-from lostx.core.config import HeadingConfig, SequenceConfig
+from lostx.core.config import HeadingConfig, MotionConfig, SequenceConfig
 from lostx.core.describe.describer import LostDescriber
 from lostx.core.geometry import CAMERA_FILE, write_camera_file
 from lostx.evaluation.groundtruth import from_positions
@@ -218,20 +218,22 @@ def test_a_same_direction_query_reports_same(scene, mosaic, tmp_path):
 
 def test_the_sequence_follows_the_road_through_the_roundabout(scene, maps, mosaic):
     """Front frames 17 to 33 drive round the roundabout (the car's heading swings by 30 degrees and back, its
-    speed changes): lined up by the distance travelled, the sequence stays on the rear camera's map there;
-    straight in frames too, now that the map's grids are compared as the bend's other end sees them."""
+    speed changes): lined up by the distance travelled, the sequence stays on the rear camera's map there. Frames
+    that carry no motion are lined up straight in frames instead, and have no layout: nothing places their grids."""
     queries = open_traverse(scene / "front", options=LOOK_AT)
-    frames = [dataclasses.replace(f, camera=None) for f in queries]
     roundabout = slice(17, 34)
-    right = {}
-    for follow in ("distance", "frames"):
-        localizer = Localizer(maps["rear"], Config(sequence=SequenceConfig(follow=follow)), mosaic)
+    right, following = {}, {}
+    for motion in (True, False):
+        frames = [dataclasses.replace(f, camera=None, odometry=f.odometry if motion else None) for f in queries]
+        config = Config(motion=MotionConfig(source="auto" if motion else "odometry"))
+        localizer = Localizer(maps["rear"], config, mosaic)
         estimates = [localizer.step(f) for f in frames]
-        assert localizer.following_distance == (follow == "distance")
+        following[motion] = localizer.following_distance
         correct, matchable = _right(estimates, maps["rear"], queries)
         assert matchable[roundabout].all()
-        right[follow] = int(correct[roundabout].sum())
-    assert right == {"distance": 17, "frames": 17}  # measured: every frame of the roundabout either way
+        right[motion] = int(correct[roundabout].sum())
+    assert following == {True: True, False: False}
+    assert right == {True: 17, False: 0}  # measured: without motion, LoST-X alone finds none of the bend
 
 
 def test_the_layout_is_drawn_as_it_fits_the_answer(scene, maps, mosaic):

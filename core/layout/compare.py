@@ -181,6 +181,13 @@ class Alignment:
     similarity: float
 
 
+TURNS: tuple[float, ...] = (-5.0, 0.0, 5.0)
+"""Degrees the query's grid is turned about its centre when the most similar map grids are compared again: views of
+a curve from its two ends are not exactly 180 degrees apart, and the gathered frames' motion and the camera's
+mounting are known to a few degrees. Not a setting: no turns won scene-0916 by 4 of 106 queries and lost scene-0523
+6 of 132, 5 degrees the reverse, 8 lost both (benchmarks/results/study_layout.md)."""
+
+
 def aligned(view: LayoutGrid, target: LayoutGrid, weights: np.ndarray, shifts: int, turns: Sequence[float],
             min_cells: int) -> Alignment:
     """``view`` turned by each of ``turns`` (0 included) and shifted by up to ``shifts`` cells, as it best fits

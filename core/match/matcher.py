@@ -24,6 +24,7 @@ from ..describe.thumbnail import ThumbnailDescriber
 from ..errors import InputError, MapError, StateError
 from ..frame import HEADINGS, Camera, Frame, Heading
 from ..images import check_frame
+from ..layout import compare as grid_compare
 from ..layout.classes import CHANNELS, LayoutClasses
 from ..layout.describer import FramePlacer, LiveLayout
 from ..layout.grid import Gathering, LayoutGrid
@@ -545,7 +546,7 @@ class PlaceMatcher:
         stored = looks_up_costs(self.config.sequence, n) and not every
         grids = self.map.stored_grids if stored else self.map.layout_stack
         comparison = LayoutComparison(grid, grids(), self._layout_weights, self._layout_shifts, cfg.min_cells,
-                                      cfg.turns, grids("opposite"))
+                                      grid_compare.TURNS, grids("opposite"))
         if every:
             comparison.start(self._comparer(comparison))
         return comparison
