@@ -79,3 +79,48 @@ def test_quick_run(script: Path, tmp_path: Path) -> None:
     assert tables and all(tables.values()), f"{script.name}: an empty table in {out}: {payload}"
     figures = [x for x in numbers(tables) if math.isfinite(x) and x > 0]
     assert figures, f"{script.name}: no measured figure in {out}: {payload}"
+
+
+def _figures(by_scene: dict[str, tuple[int, int, int, int]]) -> dict:
+    """A variant's results as the studies hold them: S1 and S2, single and sequence, right answers, at 2 Hz."""
+    from scenes import Counts
+
+    return {scene: {"2 Hz": {"S1": {"single": Counts(right=a), "sequence": Counts(right=b)},
+                             "S2": {"single": Counts(right=c), "sequence": Counts(right=d)}}}
+            for scene, (a, b, c, d) in by_scene.items()}
+
+
+@pytest.fixture()
+def scenes_module():
+    sys.path.insert(0, str(BENCHMARKS))
+    try:
+        import scenes
+        yield scenes
+    finally:
+        sys.path.remove(str(BENCHMARKS))
+
+
+def test_a_choice_that_wins_one_scene_by_a_query_and_loses_the_other_does_not_carry(scenes_module) -> None:
+    """The sequence straight in frames against following the distance, as measured on the two nuScenes scenes: chosen
+    on scene-0523 (113 against 112) it loses scene-0916 13 (39 against 52), so the family does not carry; the rule
+    keeps the default."""
+    results = {"straight in frames": _figures({"scene-0523": (31, 31, 23, 28), "scene-0916": (9, 12, 7, 11)}),
+               "following the distance (default)": _figures({"scene-0523": (30, 28, 24, 30),
+                                                              "scene-0916": (12, 15, 10, 15)})}
+    assert scenes_module.chosen_on(results, "scene-0523") == "straight in frames"
+    assert scenes_module.chosen_on(results, "scene-0916") == "following the distance (default)"
+    assert not scenes_module.carries(results)
+    assert scenes_module.rule(results) == "following the distance (default)"
+
+
+def test_a_choice_within_noise_on_both_scenes_carries(scenes_module) -> None:
+    """The distance window, 30, 45 or 60 m, as measured: each scene's choice is within two queries of the other
+    scene's best."""
+    results = {"30 m": _figures({"scene-0523": (30, 28, 24, 30), "scene-0916": (12, 15, 11, 16)}),
+               "45 m (default)": _figures({"scene-0523": (30, 28, 24, 30), "scene-0916": (12, 15, 10, 15)}),
+               "60 m": _figures({"scene-0523": (30, 28, 25, 30), "scene-0916": (12, 15, 11, 15)})}
+    assert scenes_module.chosen_on(results, "scene-0523") == "60 m"
+    assert scenes_module.chosen_on(results, "scene-0916") == "30 m"
+    assert scenes_module.carries(results)
+    worse = {**results, "60 m": _figures({"scene-0523": (30, 28, 25, 30), "scene-0916": (11, 14, 10, 14)})}
+    assert not scenes_module.carries(worse)  # 60 m chosen on scene-0523 now falls 4 short of scene-0916's best
